@@ -122,10 +122,18 @@ class TowerGroup(_Strict):
     cell: CellParams = CellParams()
     ehx_ua_w_per_k: float = Field(gt=0, default=4.04e6, description="plate HX, one train per tower")
     basin_volume_m3: float = Field(gt=0, default=50.0)
-    stage_up_speed: float = Field(gt=0, le=1, default=0.9)
-    stage_down_speed: float = Field(ge=0, lt=1, default=0.3)
+    stage_up_speed: float = Field(gt=0, le=1, default=0.3)
+    stage_down_speed: float = Field(ge=0, lt=1, default=0.08)
     stage_delay_s: float = Field(ge=0, default=300.0)
     lw_setpoint_k: float = Field(default=298.15, description="initial leaving-water setpoint")
+
+    @model_validator(mode="after")
+    def _staging(self) -> "TowerGroup":
+        if self.stage_down_speed >= self.stage_up_speed:
+            raise ValueError(
+                f"`stage_down_speed` ({self.stage_down_speed}) must be < `stage_up_speed` ({self.stage_up_speed})"
+            )
+        return self
 
 
 class HtwLoop(_Strict):

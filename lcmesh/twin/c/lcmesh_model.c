@@ -79,13 +79,20 @@ static double secondary_flow(const Model *m, int i, double speed) {
     return 2.0 * c / (r + sqrt(r * r + 4.0 * k * c));
 }
 
-/* Frontier York-type approach correlation (frontier-cooling-physics.md); adj is the
- * cell's heat-to-air ratio, 1 at design heat and full fan. */
-static double tower_approach(const Model *m, double t_wet_bulb, double adj) {
+/* Leaving water of an active cell: the Frontier York-type approach correlation
+ * (frontier-cooling-physics.md), T_app = 5/9 (c1 + (c2 - 1) T_wb[F]), with
+ * c1 = 25 - 0.6 (27 - 17 adj), c2 = 0.73 + 0.0067 (27 - 17 adj), is linear in adj:
+ * T_app = alpha + beta adj. We take adj = Q_cell / (Q_design * air ratio), the cell's heat per
+ * unit air relative to design; with Q_cell = m c_p (T_in - T_lw) the leaving temperature then
+ * has a closed form (no algebraic loop to iterate). */
+static double tower_leaving_temp(const Model *m, double t_wet_bulb, double t_in, double air_ratio) {
     double twb_f = fmin((t_wet_bulb - 273.15) * 1.8 + 32.0, P_CT_WB_MAX_F);
-    double c1 = 25.0 - 0.6 * (27.0 - 17.0 * adj);
-    double c2 = 0.73 + 0.0067 * (27.0 - 17.0 * adj);
-    return fmax(P_CT_APPROACH_MIN, 5.0 / 9.0 * (c1 + (c2 - 1.0) * twb_f));
+    double alpha = 5.0 / 9.0 * (8.8 - 0.0891 * twb_f);
+    double beta = 5.0 / 9.0 * (10.2 - 0.1139 * twb_f);
+    double gamma = P_CT_CELL_FLOW * CP_WATER / (P_CT_DESIGN_HEAT * air_ratio);
+    double t_lw = (t_wet_bulb + alpha + beta * gamma * t_in) / (1.0 + beta * gamma);
+    t_lw = fmax(t_lw, t_wet_bulb + P_CT_APPROACH_MIN);
+    return fmin(t_lw, t_in);
 }
 
 static double stored_energy(const Model *m) {
@@ -129,7 +136,6 @@ void model_init(Model *m) {
         m->fan_speed[n] = 0.5;
         m->fan_integ[n] = 0.5 / P_FAN_K;
         m->leaving_temp[n] = P_INIT_LW_SETPOINT;
-        m->cell_heat_ratio[n] = 0.5;
         m->cells_on[n] = NCELL;
         m->stage_up_timer[n] = m->stage_down_timer[n] = 0.0;
     }
@@ -333,11 +339,9 @@ int model_do_step(Model *m, double h) {
             double t_ct_in = m_ct > 0.0 ? m->t_basin[n] + q_ehx / (m_ct * CP_WATER) : m->t_basin[n];
             /* every active cell runs at the tower's fan speed and sees the same inlet */
             double air = fmax(m->fan_speed[n], P_CT_FREE_CONVECTION);
-            double approach = tower_approach(m, t_wb, m->cell_heat_ratio[n] / air);
-            double t_lw = fmin(t_ct_in, t_wb + approach);
+            double t_lw = tower_leaving_temp(m, t_wb, t_ct_in, air);
             double q_cell = P_CT_CELL_FLOW * CP_WATER * (t_ct_in - t_lw);
             m->leaving_temp[n] = on > 0 ? t_lw : t_ct_in;
-            m->cell_heat_ratio[n] = q_cell / P_CT_DESIGN_HEAT;
             int placed = 0;
             for (int j = 0; j < NCELL; j++) {
                 int c = n * NCELL + j;

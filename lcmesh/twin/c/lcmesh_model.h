@@ -30,7 +30,6 @@ typedef struct {
     double stuck_pos[NCAB];
     int stuck[NCAB];
     double fan_speed[NTOW], fan_integ[NTOW], leaving_temp[NTOW];
-    double cell_heat_ratio[NTOW];
     int cells_on[NTOW];
     double stage_up_timer[NTOW], stage_down_timer[NTOW];
 
