@@ -157,6 +157,17 @@ class FmuRunner:
             raise FmuError(f"fmi2DoStep failed at t = {self.time:.0f} s with status {status}")
         self.time += step_s
 
+    # --- fmpy's list-based API (kept for the benchmark's comparison) --------
+    def set_real_list(self, vrs: Sequence[int], values: Sequence[float]) -> None:
+        self._fmu.setReal(list(vrs), list(values))
+
+    def get_real_list(self, vrs: Sequence[int]) -> list[float]:
+        return self._fmu.getReal(list(vrs))
+
+    def do_step_list(self, step_s: float) -> None:
+        self._fmu.doStep(currentCommunicationPoint=self.time, communicationStepSize=step_s)
+        self.time += step_s
+
     # --- state -------------------------------------------------------------
     def save_state(self) -> FmuState:
         pointer = ctypes.c_void_p()

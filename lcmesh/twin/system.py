@@ -60,7 +60,7 @@ class BladeGroupParams(_Strict):
     """Thermal parameters of one branch; split evenly over its blade groups."""
 
     branch_heat_capacity_j_per_k: float = Field(gt=0, default=1.5e6)
-    branch_conductance_w_per_k: float = Field(gt=0, default=70e3)
+    branch_conductance_w_per_k: float = Field(gt=0, default=85e3)
     conductance_flow_exponent: float = Field(ge=0, le=1.5, default=0.8)
     nominal_branch_flow_kg_s: float = Field(gt=0, default=5.67)
     heat_nonlinearity: float = Field(ge=0, default=0.015)
@@ -69,7 +69,7 @@ class BladeGroupParams(_Strict):
 
 class CduParams(_Strict):
     hx_ua_sat_w_per_k: float = Field(gt=0, default=73.9e3)
-    hx_ua_correction: float = Field(gt=0, default=1.2)
+    hx_ua_correction: float = Field(gt=0, default=1.6)
     hx_flow_sat_m3_s: float = Field(gt=0, default=0.0227)
     hx_secondary_volume_m3: float = Field(gt=0, default=0.255)
     r_hx_secondary_pa_per_kg_s: float = Field(gt=0, default=11_000)
@@ -97,7 +97,7 @@ class CabinetGroup(_Strict):
     count: int = Field(ge=1, le=1000, description="C: CDU-cabinet pairs")
     branches: int = Field(ge=1, le=64, description="B: valve-controlled blade-group branches per cabinet")
     blade_groups_per_branch: int = Field(ge=1, le=10_000, default=1)
-    design_heat_w: float = Field(gt=0, default=325e3, description="mean IT load of a cabinet; traces are scaled to it")
+    design_heat_w: float = Field(gt=0, default=250e3, description="mean IT load of a cabinet; traces are scaled to it")
     coolant_volume_m3: float = Field(gt=0, default=0.083)
     blade_group: BladeGroupParams = BladeGroupParams()
     cdu: CduParams = CduParams()

@@ -192,7 +192,7 @@ class EpisodeDriver:
         """KPI sample: the fraction of blade groups within 20..40 degC now."""
         t = self._blade_temp_k
         lo, hi = KPI_BAND_K
-        return np.count_nonzero((t >= lo) & (t <= hi)) / t.size
+        return int(np.count_nonzero((t >= lo) & (t <= hi))) / t.size
 
     def close(self) -> None:
         self.plant.close()

@@ -1,0 +1,1 @@
+"""Benchmarks behind ``lcmesh bench ...``; results are summarized in BENCHMARKS.md."""

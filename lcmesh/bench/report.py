@@ -1,0 +1,44 @@
+"""Write benchmark results into BENCHMARKS.md, one marked section per benchmark."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def update_benchmarks_md(path: Path, name: str, result: dict) -> None:
+    """Replace (or append) the section between ``<!-- bench:NAME -->`` markers."""
+    render = {"twin": render_twin}[name]
+    start, end = f"<!-- bench:{name}:start -->", f"<!-- bench:{name}:end -->"
+    block = f"{start}\n{render(result)}\n{end}"
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    if start in text and end in text:
+        head, rest = text.split(start, 1)
+        text = head + block + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip() + "\n\n" + block + "\n"
+    path.write_text(text)
+
+
+def render_twin(r: dict) -> str:
+    m, env, loop, cmp_, day = r["machine"], r["env_lcopt5"], r["plant_loop_lcopt5"], r["fmi2_raw_vs_list"], r[
+        "frontier_full_day"
+    ]
+    lines = [
+        "## Twin (`lcmesh bench twin --json runs/bench/twin.json --markdown BENCHMARKS.md`)",
+        "",
+        f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs, pinned to CPU {m['pinned_cpu']}; "
+        f"Python {m['python']}, numpy {m['numpy']}, fmpy {m['fmpy']}; commit {m['commit']}; {m['date']}.",
+        "Medians of repeats in one run.",
+        "",
+        "| figure | measured | target |",
+        "|---|---|---|",
+        f"| lcopt-5 cabinet env (Gymnasium), steps/s | {env['cabinet']['steps_per_s']:,.0f} | >= 5,000 (LC-Opt: ~50) |",
+        f"| lcopt-5 tower env, steps/s | {env['tower']['steps_per_s']:,.0f} | |",
+        f"| lcopt-5 parallel env (PettingZoo, 7 agents), steps/s | {env['parallel']['steps_per_s']:,.0f} | |",
+        f"| lcopt-5 plant loop (trace + static rule + FMU), steps/s | {loop['steps_per_s']:,.0f} | |",
+        f"| frontier-full ({day['blade_groups']:,} blade groups) 24 h day, wall s | {day['wall_s']:.2f} "
+        f"({day['realtime_factor']:,.0f}x real time) | <= 20 s (>= 4,000x) |",
+        f"| raw fmi2 + numpy buffers vs fmpy list API (lcopt-5 loop) | {cmp_['raw_fmi2_steps_per_s']:,.0f} vs "
+        f"{cmp_['fmpy_list_steps_per_s']:,.0f} steps/s = {cmp_['speedup']:.1f}x | |",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,190 @@
+"""The ``lcmesh`` command line (user-facing names fixed by DESIGN.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+app = typer.Typer(help="lc-mesh: liquid-cooling digital twin, controllers and agent mesh.", no_args_is_help=True)
+twin_app = typer.Typer(help="Build, validate and run the digital twin.", no_args_is_help=True)
+bench_app = typer.Typer(help="Benchmarks (results go to BENCHMARKS.md).", no_args_is_help=True)
+app.add_typer(twin_app, name="twin")
+app.add_typer(bench_app, name="bench")
+
+console = Console(stderr=True)
+
+SystemOpt = Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")]
+JsonOpt = Annotated[Optional[Path], typer.Option("--json", help="write the result as JSON here")]
+
+
+def _fail(message: str) -> None:
+    console.print(f"[red]error:[/red] {message}")
+    raise typer.Exit(2)
+
+
+def _load_system(name: str):
+    from lcmesh.twin.system import SystemDescriptionError, load_system
+
+    try:
+        return load_system(name)
+    except SystemDescriptionError as exc:
+        _fail(str(exc))
+
+
+def _write_json(path: Path | None, data: dict) -> None:
+    text = json.dumps(data, indent=2, default=_json_default)
+    if path is None:
+        print(text)
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + "\n")
+    console.print(f"wrote {path}")
+
+
+def _json_default(value):
+    import numpy as np
+
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serializable: {type(value).__name__}")
+
+
+@twin_app.command("build")
+def twin_build(
+    system: Annotated[list[str], typer.Option("--system", "-s", help="system(s) to build; repeatable")] = [
+        "lcopt-5"
+    ],
+    all_systems: Annotated[bool, typer.Option("--all", help="build every reference system")] = False,
+    out: Annotated[Optional[Path], typer.Option(help="copy the FMU(s) into this folder")] = None,
+    force: Annotated[bool, typer.Option(help="rebuild even if cached")] = False,
+) -> None:
+    """Generate C + modelDescription.xml, compile, package and validate the FMU (cached by content hash)."""
+    import shutil
+
+    from lcmesh.twin.fmu_build import FmuBuildError, build_fmu
+    from lcmesh.twin.fmu_runner import validate_fmu
+    from lcmesh.twin.system import reference_systems
+
+    names = reference_systems() if all_systems else system
+    for name in names:
+        desc = _load_system(name)
+        try:
+            built = build_fmu(desc, force=force)
+        except FmuBuildError as exc:
+            _fail(str(exc))
+        problems = validate_fmu(built.path)
+        status = "cached" if built.cached else "built"
+        console.print(f"{desc.name}: {status} {built.path} ({built.layout.n_reals} variables)")
+        if problems:
+            _fail(f"fmpy validate found problems in {built.path}:\n" + "\n".join(problems))
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(built.path, out / f"{desc.name}.fmu")
+            console.print(f"  copied to {out / (desc.name + '.fmu')}")
+
+
+@twin_app.command("validate")
+def twin_validate(
+    system: SystemOpt = "lcopt-5",
+    json_out: JsonOpt = None,
+    plots: Annotated[Optional[Path], typer.Option(help="folder for validation plots")] = None,
+) -> None:
+    """Physics checks: energy balance, blade band, setpoint step, monotonicity, tower fan power."""
+    from lcmesh.twin.validate import validate_twin
+
+    desc = _load_system(system)
+    with console.status(f"validating {desc.name}"):
+        report = validate_twin(desc, plot_dir=plots)
+    table = Table(title=f"twin validate: {desc.name}")
+    table.add_column("check")
+    table.add_column("passed")
+    table.add_column("criterion")
+    for check in report["checks"]:
+        table.add_row(check["name"], "[green]yes[/green]" if check["passed"] else "[red]NO[/red]", check["criterion"])
+    console.print(table)
+    _write_json(json_out, report)
+    if not report["passed"]:
+        raise typer.Exit(1)
+
+
+@twin_app.command("run")
+def twin_run(
+    system: SystemOpt = "lcopt-5",
+    trace: Annotated[str, typer.Option(help="frontier-2024-04-07, synthetic:SEED or a CSV path")] = "frontier-2024-04-07",
+    hours: Annotated[float, typer.Option(help="simulated hours (capped at the trace length)")] = 24.0,
+    controller: Annotated[str, typer.Option(help="static (more with the controllers issue)")] = "static",
+    wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb (LC-Opt's hardening: 15)")] = 15.0,
+    json_out: JsonOpt = None,
+    plot: Annotated[Optional[Path], typer.Option(help="PNG plot (default: beside --json)")] = None,
+) -> None:
+    """Run a controller on the twin over a trace; KPIs as JSON, a progress bar, a PNG plot."""
+    from lcmesh.twin.controllers import make_controller
+    from lcmesh.twin.plant import Plant
+    from lcmesh.twin.run import plot_run, run_twin
+    from lcmesh.twin.traces import TraceError, load_trace
+
+    if not (hours > 0 and math.isfinite(hours)):
+        _fail(f"`--hours` must be > 0, got {hours}")
+    desc = _load_system(system)
+    try:
+        tr = load_trace(trace, desc, wet_bulb_offset_k=wet_bulb_offset)
+        ctrl = make_controller(controller, desc)
+    except (TraceError, ValueError) as exc:
+        _fail(str(exc))
+    n_steps = min(tr.n_steps, int(round(hours * 3600 / tr.step_s)))
+    if n_steps < int(round(hours * 3600 / tr.step_s)):
+        console.print(f"[yellow]note:[/yellow] the trace holds {tr.n_steps * tr.step_s / 3600:.2f} h; running that")
+    with Plant(desc) as plant, _progress() as progress:
+        task = progress.add_task(f"{desc.name} / {controller}", total=n_steps)
+        every = max(1, n_steps // 200)
+        result = run_twin(plant, tr, ctrl, n_steps=n_steps, record_every=max(1, n_steps // 2000),
+                          on_step=lambda k: (k + 1) % every == 0 and progress.update(task, completed=k + 1))  # fmt: skip
+        progress.update(task, completed=n_steps)
+    data = result.to_json()
+    plot_path = plot or (json_out.with_suffix(".png") if json_out else None)
+    if plot_path is not None:
+        data["plot"] = str(plot_run(result, plot_path))
+    k = result.kpi
+    console.print(
+        f"d_blade {k['d_blade_pct']:.2f} %  CT {k['ct_power_kw_avg']:.1f} kW  IT cooling {k['it_cooling_kw_avg']:.0f} kW"
+        f"  energy balance {k['energy_balance_error_pct']:.2e} %  {result.realtime_factor:,.0f}x real time"
+    )
+    _write_json(json_out, data)
+
+
+def _progress() -> Progress:
+    return Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+        console=console,
+    )  # fmt: skip
+
+
+@bench_app.command("twin")
+def bench_twin(
+    json_out: JsonOpt = None,
+    quick: Annotated[bool, typer.Option(help="fewer steps and repeats (smoke run)")] = False,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+) -> None:
+    """Env steps/s (lcopt-5), a 24 h frontier-full day, raw fmi2 vs fmpy list API."""
+    from lcmesh.bench.report import update_benchmarks_md
+    from lcmesh.bench.twin import run_bench_twin
+
+    with console.status("benchmarking the twin (one core)"):
+        result = run_bench_twin(quick=quick)
+    _write_json(json_out, result)
+    if markdown is not None:
+        update_benchmarks_md(markdown, "twin", result)
+        console.print(f"updated {markdown}")
+
+
+def main() -> None:  # pragma: no cover
+    app()
