@@ -103,11 +103,11 @@ class FmuRunner:
 
     # --- variables -------------------------------------------------------
     def has(self, block: str) -> bool:
-        try:
+        """Whether the FMU provides `block`; a variable-map entry naming unknown variables raises."""
+        if block in self._map:
             self.vrs(block)
-        except FmuError:
-            return False
-        return True
+            return True
+        return block in self._blocks or block in self._real_vrs
 
     def vrs(self, block: str) -> np.ndarray:
         """Value references of a block (``blade_temp_k``) or a single variable, in index order."""
@@ -186,11 +186,22 @@ class FmuRunner:
             self._fmu._functions["fmi2FreeFMUstate"](self._component, ctypes.byref(state.pointer))
 
     def serialize_state(self, state: FmuState) -> bytes:
-        data = self._fmu.serializeFMUstate(state.pointer)
-        return bytes(data)
+        """The state as bytes (to store, or to send to another process running the same FMU)."""
+        fns = self._fmu._functions
+        size = ctypes.c_size_t()
+        self._check(fns["fmi2SerializedFMUstateSize"](self._component, state.pointer, ctypes.byref(size)), "Size")
+        buffer = ctypes.create_string_buffer(size.value)
+        self._check(fns["fmi2SerializeFMUstate"](self._component, state.pointer, buffer, size), "SerializeFMUstate")
+        return buffer.raw
 
     def deserialize_state(self, data: bytes, time: float = 0.0) -> FmuState:
-        pointer = self._fmu.deSerializeFMUstate(bytearray(data))
+        """A state from `serialize_state` bytes; corrupt or foreign bytes raise FmuError."""
+        pointer = ctypes.c_void_p()
+        buffer = ctypes.create_string_buffer(bytes(data), len(data))
+        status = self._fmu._functions["fmi2DeSerializeFMUstate"](
+            self._component, buffer, ctypes.c_size_t(len(data)), ctypes.byref(pointer)
+        )
+        self._check(status, "DeSerializeFMUstate")
         state = FmuState(pointer, time)
         self._states.append(state)
         return state

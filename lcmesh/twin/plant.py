@@ -31,6 +31,9 @@ OUTPUT_BLOCKS = (
 )  # fmt: skip
 
 
+REQUIRED_OUTPUTS = ("blade_temp_k", "branch_temp_k", "branch_power_w", "cell_fan_power_w", "ct_leaving_temp_k")
+
+
 @dataclass
 class PlantAction:
     """Setpoints for one step, SI units: what the controllers decide."""
@@ -79,6 +82,9 @@ class Plant:
         self.inp = _views(self._inputs.values, ("blade_power_w", "wet_bulb_k", *ACTION_BLOCKS), self.shapes)
         self._faults = self.runner.channel(*FAULT_BLOCKS) if all(map(self.runner.has, FAULT_BLOCKS)) else None
         present = [b for b in OUTPUT_BLOCKS if self.runner.has(b)]
+        missing = [b for b in REQUIRED_OUTPUTS if b not in present]
+        if missing:
+            raise ValueError(f"{self.fmu_path.name} lacks required outputs {missing}; map them in the variable map")
         self._outputs = self.runner.channel(*present)
         self.out = _views(self._outputs.values, present, self.shapes)
         self.faults = Faults(np.zeros(C), np.zeros(C), np.zeros((N, m)), np.zeros(C))

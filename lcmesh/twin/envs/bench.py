@@ -16,7 +16,9 @@ from collections.abc import Callable
 ENV_KINDS = ("cabinet", "tower", "parallel", "cabinet-normalized")
 
 
-def env_steps_per_second(system: str = "lcopt-5", n_steps: int = 20_000, env: str = "cabinet", repeats: int = 3) -> dict:
+def env_steps_per_second(
+    system: str = "lcopt-5", n_steps: int = 20_000, env: str = "cabinet", repeats: int = 3
+) -> dict[str, object]:
     """Median steps/s over ``repeats`` runs of ``n_steps`` steps with one action sampled up front."""
     if env not in ENV_KINDS:
         raise ValueError(f"`env` must be one of {ENV_KINDS}, got {env!r}")
@@ -24,10 +26,10 @@ def env_steps_per_second(system: str = "lcopt-5", n_steps: int = 20_000, env: st
         raise ValueError(f"`n_steps` and `repeats` must be >= 1, got {n_steps} and {repeats}")
     run = _parallel_loop(system) if env == "parallel" else _gym_loop(system, env)
     run(min(n_steps, 200))  # warm caches and lazy imports outside the timed runs
-    rates = []
+    rates, episodes = [], []
     for _ in range(repeats):
         start = time.perf_counter()
-        run(n_steps)
+        episodes.append(run(n_steps))
         rates.append(n_steps / (time.perf_counter() - start))
     median = statistics.median(rates)
     return {
@@ -37,10 +39,11 @@ def env_steps_per_second(system: str = "lcopt-5", n_steps: int = 20_000, env: st
         "steps_per_s": median,
         "us_per_step": 1e6 / median,
         "repeats_steps_per_s": rates,
+        "episodes_per_repeat": episodes,  # each reset includes the warm-up steps
     }
 
 
-def _gym_loop(system: str, kind: str) -> Callable[[int], None]:
+def _gym_loop(system: str, kind: str) -> Callable[[int], int]:
     from lcmesh.twin.envs import CabinetEnv, TowerEnv, make_normalized
 
     env = (TowerEnv if kind == "tower" else CabinetEnv)(system=system)
@@ -50,17 +53,19 @@ def _gym_loop(system: str, kind: str) -> Callable[[int], None]:
     action = env.action_space.sample()
     env.reset(seed=0)
 
-    def run(n_steps: int) -> None:
-        step, reset = env.step, env.reset
+    def run(n_steps: int) -> int:
+        step, reset, resets = env.step, env.reset, 0
         for _ in range(n_steps):
             _, _, terminated, truncated, _ = step(action)
             if terminated or truncated:
                 reset()
+                resets += 1
+        return resets
 
     return run
 
 
-def _parallel_loop(system: str) -> Callable[[int], None]:
+def _parallel_loop(system: str) -> Callable[[int], int]:
     from lcmesh.twin.envs import CoolingParallelEnv
 
     env = CoolingParallelEnv(system=system)
@@ -70,11 +75,14 @@ def _parallel_loop(system: str) -> Callable[[int], None]:
         env.action_space(agent).seed(0)
         actions[agent] = env.action_space(agent).sample()
 
-    def run(n_steps: int) -> None:
+    def run(n_steps: int) -> int:
+        resets = 0
         for _ in range(n_steps):
             env.step(actions)
             if not env.agents:
                 env.reset()
+                resets += 1
+        return resets
 
     return run
 

@@ -147,7 +147,8 @@ class CabinetEnv(gym.Env):
         clamped = self.actuator.apply(action, self._action)
         self._action.lw_setpoint_k[:] = self.driver.default_action().lw_setpoint_k
         _, terminated, truncated = self.driver.step(self._action)
-        temperature, shaping = cabinet_reward_terms(self._branch_temp_k, self._branch_power_w, self._action.valve_fractions)
+        valves = self._action.valve_fractions
+        temperature, shaping = cabinet_reward_terms(self._branch_temp_k, self._branch_power_w, valves)
         rewards = temperature + shaping
         info = {
             "time_s": self.driver.time_s,

@@ -164,7 +164,7 @@ class EpisodeDriver:
             else:
                 start_row = 0
         elif not 0 <= start_row < self.n_rows:
-            raise ValueError(f"`start_row` must be in [0, {self.n_rows}) for trace {self.trace.name!r}, got {start_row}")
+            raise ValueError(f"`start_row` must be in [0, {self.n_rows}) for {self.trace.name!r}, got {start_row}")
         self.start_row = start_row
         self.steps_done = 0
         self.time_s = start_row * self.step_s

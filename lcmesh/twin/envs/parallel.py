@@ -32,7 +32,7 @@ from lcmesh.twin.envs.cabinet import (
     CabinetActuator,
     cabinet_reward_terms,
 )
-from lcmesh.twin.envs.episode import EpisodeConfig, EpisodeDriver, make_config
+from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, EpisodeDriver, make_config
 from lcmesh.twin.envs.tower import N_LW_ACTIONS, TowerActuator
 from lcmesh.twin.envs.wrappers import UnitScale
 
@@ -90,8 +90,7 @@ class CoolingParallelEnv(ParallelEnv):
         self._tower_index = np.full(N, N_LW_ACTIONS // 2, dtype=np.int64)
         self._cabinet_obs_phys = np.empty((C, 2 * B))
         self._tower_obs_phys = np.empty((N, tower_obs_len))
-        out = self.driver.plant.out
-        self._out = out
+        self._out = self.driver.plant.out
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[self._check_agent(agent)]
@@ -114,9 +113,43 @@ class CoolingParallelEnv(ParallelEnv):
         for agent in actions:
             if agent not in self.action_spaces:
                 self._check_agent(agent)
-        C, B, N, m = self._shape
+        clamped = self._apply(actions)
+        out, terminated, truncated = self.driver.step(self._action)
+        temperature, shaping = cabinet_reward_terms(
+            out["branch_temp_k"], out["branch_power_w"], self._action.valve_fractions
+        )
+        tower_fan_w = out["cell_fan_power_w"].sum(axis=1)
+        rewards = {a: float(r) for a, r in zip(self.cabinet_agents, temperature + shaping, strict=True)}
+        for agent, fan_w in zip(self.tower_agents, tower_fan_w, strict=True):
+            rewards[agent] = float(fan_w) * self._tower_reward_scale
+
+        time_s, kpi = self.driver.time_s, self.driver.in_band_fraction()
+        infos: dict[str, dict[str, Any]] = {}
+        for i, agent in enumerate(self.cabinet_agents):
+            infos[agent] = {"time_s": time_s, "clamped": [], "valve_shaping": float(shaping[i])}
+        for j, agent in enumerate(self.tower_agents):
+            infos[agent] = {
+                "time_s": time_s,
+                "clamped": [],
+                "fan_power_w": float(tower_fan_w[j]),
+                "lw_setpoint_k": float(self._action.lw_setpoint_k[j]),
+            }
+        for agent, info in infos.items():
+            info["kpi_in_band_fraction"] = kpi
+            if agent not in actions:
+                info["default_action"] = True
+        for clamp in clamped:
+            infos[clamp.agent]["clamped"].append(clamp)
+
+        terminations = dict.fromkeys(self.agents, terminated)
+        truncations = dict.fromkeys(self.agents, truncated)
+        if terminated or truncated:
+            self.agents = []
+        return self._observe(), rewards, terminations, truncations, infos
+
+    def _apply(self, actions: dict[str, Any]) -> list[Clamp]:
+        """Write the agents' actions (the default policy's for absent agents) into the plant action."""
         default = self.driver.default_action()
-        missing = [a for a in self.agents if a not in actions]
         unit = self._cabinet_unit
         for i, agent in enumerate(self.cabinet_agents):
             if agent in actions:
@@ -124,7 +157,9 @@ class CoolingParallelEnv(ParallelEnv):
         physical = self._cabinet_action_scale.from_unit(unit)
         for i, agent in enumerate(self.cabinet_agents):
             if agent not in actions:
-                physical[i] = (default.supply_temp_setpoint_k[i], default.dp_setpoint_pa[i], *default.valve_fractions[i])
+                physical[i, 0] = default.supply_temp_setpoint_k[i]
+                physical[i, 1] = default.dp_setpoint_pa[i]
+                physical[i, 2:] = default.valve_fractions[i]
         clamped = self.cabinet_actuator.apply(physical, self._action)
         index = self._tower_index
         for j, agent in enumerate(self.tower_agents):
@@ -133,40 +168,10 @@ class CoolingParallelEnv(ParallelEnv):
         for j, agent in enumerate(self.tower_agents):
             if agent not in actions:
                 self._action.lw_setpoint_k[j] = default.lw_setpoint_k[j]
-
-        out, terminated, truncated = self.driver.step(self._action)
-        temperature, shaping = cabinet_reward_terms(
-            out["branch_temp_k"], out["branch_power_w"], self._action.valve_fractions
-        )
-        tower_fan_w = out["cell_fan_power_w"].sum(axis=1)
-        rewards = {a: float(r) for a, r in zip(self.cabinet_agents, temperature + shaping, strict=True)}
-        rewards.update((a, float(p) * self._tower_reward_scale) for a, p in zip(self.tower_agents, tower_fan_w, strict=True))
-        time_s, kpi = self.driver.time_s, self.driver.in_band_fraction()
-        infos: dict[str, dict[str, Any]] = {}
-        for i, agent in enumerate(self.cabinet_agents):
-            infos[agent] = {"time_s": time_s, "clamped": [], "valve_shaping": float(shaping[i]), "kpi_in_band_fraction": kpi}
-        for j, agent in enumerate(self.tower_agents):
-            infos[agent] = {
-                "time_s": time_s,
-                "clamped": [],
-                "fan_power_w": float(tower_fan_w[j]),
-                "lw_setpoint_k": float(self._action.lw_setpoint_k[j]),
-                "kpi_in_band_fraction": kpi,
-            }
-        for clamp in clamped:
-            infos[clamp.agent]["clamped"].append(clamp)
-        for agent in missing:
-            infos[agent]["default_action"] = True
-
-        observations = self._observe()
-        terminations = dict.fromkeys(self.agents, terminated)
-        truncations = dict.fromkeys(self.agents, truncated)
-        if terminated or truncated:
-            self.agents = []
-        return observations, rewards, terminations, truncations, infos
+        return clamped
 
     def _observe(self) -> dict[str, np.ndarray]:
-        C, B, N, m = self._shape
+        _, B, N, m = self._shape
         out = self._out
         cab = self._cabinet_obs_phys
         cab[:, :B] = out["branch_temp_k"]
