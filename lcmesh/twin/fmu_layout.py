@@ -92,6 +92,8 @@ def parameter_values(system: SystemDescription) -> list[tuple[str, str, float, s
         ("heat_nonlinearity", "P_HEAT_NONLINEARITY", bg.heat_nonlinearity, "1",
          "quadratic heat term: q = P*(1 + a*P/unit)"),
         ("heat_unit", "P_HEAT_UNIT", bg.heat_unit_w / per_group, "W", "scaled heat unit of one blade group"),
+        ("throttle_start", "P_THROTTLE_START", bg.throttle_start_k, "K", "blades start throttling"),
+        ("shutdown_temp", "P_SHUTDOWN_TEMP", bg.shutdown_k, "K", "blades throttled to zero"),
         ("cabinet_volume_kg", "P_CABINET_VOLUME_KG", cab.coolant_volume_m3 * RHO_WATER, "kg",
          "coolant mass of the cabinet volume"),
         ("hx_volume_kg", "P_HX_VOLUME_KG", cdu.hx_secondary_volume_m3 * RHO_WATER, "kg",
@@ -242,7 +244,8 @@ def build_layout(system: SystemDescription) -> Layout:
         ("ct_fan_power_w", "OUT_CT_FAN_POWER_TOTAL", "W", "total tower fan power (step mean)"),
         ("pump_power_w", "OUT_PUMP_POWER_TOTAL", "W", "CDU + HTW + tower pump power (step mean)"),
         ("it_cooling_w", "OUT_IT_COOLING", "W", "heat removed at the CDUs (step mean)"),
-        ("it_power_w", "OUT_IT_POWER", "W", "IT power of all blade groups"),
+        ("it_power_w", "OUT_IT_POWER", "W", "IT power demanded by all blade groups"),
+        ("throttled_power_w", "OUT_THROTTLED_POWER", "W", "IT power lost to thermal throttling"),
     ]:
         out(name, c_name, (), unit, desc)
 

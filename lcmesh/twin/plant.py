@@ -27,7 +27,7 @@ OUTPUT_BLOCKS = (
     "fan_speed", "cells_active", "ct_pump_power_w", "approach_k", "applied_lw_setpoint_k", "cell_fan_power_w",
     "cell_heat_w", "heat_in_w", "heat_rejected_w", "heat_recovered_w", "district_return_temp_k",
     "stored_energy_rate_w", "stored_energy_j", "stored_energy_change_j", "energy_in_j", "energy_rejected_j",
-    "energy_recovered_j", "ct_fan_power_w", "pump_power_w", "it_cooling_w", "it_power_w",
+    "energy_recovered_j", "ct_fan_power_w", "pump_power_w", "it_cooling_w", "it_power_w", "throttled_power_w",
 )  # fmt: skip
 
 

@@ -65,6 +65,14 @@ class BladeGroupParams(_Strict):
     nominal_branch_flow_kg_s: float = Field(gt=0, default=5.67)
     heat_nonlinearity: float = Field(ge=0, default=0.015)
     heat_unit_w: float = Field(gt=0, default=20e3, description="per branch; the paper's scaled unit")
+    throttle_start_k: float = Field(default=358.15, description="blades start throttling their power (85 C)")
+    shutdown_k: float = Field(default=378.15, description="throttled to zero: thermal shutdown (105 C)")
+
+    @model_validator(mode="after")
+    def _throttle(self) -> "BladeGroupParams":
+        if self.shutdown_k <= self.throttle_start_k:
+            raise ValueError(f"`shutdown_k` ({self.shutdown_k}) must be > `throttle_start_k` ({self.throttle_start_k})")
+        return self
 
 
 class CduParams(_Strict):

@@ -162,8 +162,8 @@ static double finite_or(double x, double fallback) { return isfinite(x) ? x : fa
 
 /* Blade groups over the whole step with the coolant supply held at its start value. */
 static double step_blade_groups(Model *m, double h, double *heat_to_coolant, const double (*split)[NBR],
-                                double *heat_in_total) {
-    double it_power = 0.0, heat_in = 0.0;
+                                double *heat_in_total, double *throttled_total) {
+    double it_power = 0.0, heat_in = 0.0, throttled = 0.0;
     const double cap = P_BG_HEAT_CAPACITY;
     for (int i = 0; i < NCAB; i++) {
         double m_sec = secondary_flow(m, i, m->pump_speed[i]);
@@ -183,8 +183,11 @@ static double step_blade_groups(Model *m, double h, double *heat_to_coolant, con
             for (int g = 0; g < NG; g++) {
                 int k = b * NG + g;
                 double p = fmax(finite_or(IN(IN_BLADE_POWER, k), 0.0), 0.0);
-                double q = p * (1.0 + P_HEAT_NONLINEARITY * p / P_HEAT_UNIT);
                 double t_old = m->t_blade[k], t_new;
+                /* over-temperature blades throttle linearly down to a shutdown */
+                double run = clampd((P_SHUTDOWN_TEMP - t_old) / (P_SHUTDOWN_TEMP - P_THROTTLE_START), 0.0, 1.0);
+                double q = run * p * (1.0 + P_HEAT_NONLINEARITY * p / P_HEAT_UNIT);
+                throttled += (1.0 - run) * p;
                 if (g_eff > 1e-9) {
                     double t_eq = t_in + q / g_eff;
                     t_new = t_eq + (t_old - t_eq) * decay;
@@ -208,6 +211,7 @@ static double step_blade_groups(Model *m, double h, double *heat_to_coolant, con
         }
     }
     *heat_in_total = heat_in;
+    *throttled_total = throttled;
     return it_power;
 }
 
@@ -277,8 +281,8 @@ int model_do_step(Model *m, double h) {
         OUT(OUT_APPLIED_LW_SETPOINT, n) = lw_sp[n];
     }
 
-    double heat_in = 0.0;
-    double it_power = step_blade_groups(m, h, heat_to_coolant, (const double (*)[NBR])split, &heat_in);
+    double heat_in = 0.0, throttled = 0.0;
+    double it_power = step_blade_groups(m, h, heat_to_coolant, (const double (*)[NBR])split, &heat_in, &throttled);
 
     int nsub = (int)ceil(h / (STEP_S / NSUB) - 1e-9);
     if (nsub < 1) nsub = 1;
@@ -438,6 +442,7 @@ int model_do_step(Model *m, double h) {
     OUT(OUT_PUMP_POWER_TOTAL, 0) = pump_power;
     OUT(OUT_IT_COOLING, 0) = it_cooling;
     OUT(OUT_IT_POWER, 0) = it_power;
+    OUT(OUT_THROTTLED_POWER, 0) = throttled;
     m->time += h;
     return isfinite(stored_now) ? 0 : 1;
 }

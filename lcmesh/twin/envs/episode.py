@@ -16,6 +16,7 @@ what any LC-Opt controller sees: the plant outputs plus the coming step's exogen
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -163,7 +164,7 @@ class EpisodeDriver:
                 start_row = int(np_random.integers(0, max(0, self.n_rows - episode_steps) + 1))
             else:
                 start_row = 0
-        elif not 0 <= start_row < self.n_rows:
+        elif not 0 <= (start_row := operator.index(start_row)) < self.n_rows:
             raise ValueError(f"`start_row` must be in [0, {self.n_rows}) for {self.trace.name!r}, got {start_row}")
         self.start_row = start_row
         self.steps_done = 0
