@@ -20,7 +20,7 @@ setup: $(STAMP)
 
 demo: setup
 	$(VENV)/bin/lcmesh twin run --system lcopt-5 --trace frontier-2024-04-07 --hours 24 \
-		--controller static --json runs/demo/run.json
+		--controller static --json runs/demo/run.json --plot runs/demo/run.png
 
 test: setup
 	$(PY) -m pytest
@@ -29,7 +29,7 @@ test-slow: setup
 	$(PY) -m pytest -m slow
 
 bench: setup
-	$(VENV)/bin/lcmesh bench twin --json runs/bench/twin.json
+	$(VENV)/bin/lcmesh bench twin --json runs/bench/twin.json --markdown BENCHMARKS.md
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

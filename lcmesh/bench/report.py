@@ -35,10 +35,18 @@ def render_twin(r: dict) -> str:
         f"| lcopt-5 cabinet env (Gymnasium), steps/s | {env['cabinet']['steps_per_s']:,.0f} | >= 5,000 (LC-Opt: ~50) |",
         f"| lcopt-5 tower env, steps/s | {env['tower']['steps_per_s']:,.0f} | |",
         f"| lcopt-5 parallel env (PettingZoo, 7 agents), steps/s | {env['parallel']['steps_per_s']:,.0f} | |",
-        f"| lcopt-5 plant loop (trace + static rule + FMU), steps/s | {loop['steps_per_s']:,.0f} | |",
+        f"| lcopt-5 closed-loop run (trace + static rule + FMU + KPIs + recording), steps/s | "
+        f"{loop['steps_per_s']:,.0f} | |",
         f"| frontier-full ({day['blade_groups']:,} blade groups) 24 h day, wall s | {day['wall_s']:.2f} "
         f"({day['realtime_factor']:,.0f}x real time) | <= 20 s (>= 4,000x) |",
         f"| raw fmi2 + numpy buffers vs fmpy list API (lcopt-5 loop) | {cmp_['raw_fmi2_steps_per_s']:,.0f} vs "
         f"{cmp_['fmpy_list_steps_per_s']:,.0f} steps/s = {cmp_['speedup']:.1f}x | |",
     ]
+    if "fmi2_raw_vs_list_frontier" in r:
+        big = r["fmi2_raw_vs_list_frontier"]
+        lines.append(
+            f"| raw fmi2 vs fmpy list API (frontier-full, {big['reals_set_per_step']:,} reals in, "
+            f"{big['reals_read_per_step']:,} out per step) | {big['raw_fmi2_steps_per_s']:,.0f} vs "
+            f"{big['fmpy_list_steps_per_s']:,.0f} steps/s = {big['speedup']:.1f}x | |"
+        )
     return "\n".join(lines)

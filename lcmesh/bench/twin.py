@@ -121,6 +121,7 @@ def run_bench_twin(quick: bool = False) -> dict:
         "env_lcopt5": envs,
         "plant_loop_lcopt5": plant_loop_steps_per_second(n_steps=2000 if quick else 5760),
         "fmi2_raw_vs_list": list_api_comparison(n_steps=1000 if quick else 3000),
+        "fmi2_raw_vs_list_frontier": list_api_comparison("frontier-full", n_steps=50 if quick else 200),
         "frontier_full_day": frontier_day(repeats=1 if quick else 3),
         "targets": {"env_lcopt5_steps_per_s": 5000, "frontier_full_day_wall_s": 20.0},
     }
