@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from lcmesh.twin.envs.episode import PHYSICAL_TEMP_BOUNDS_K, Clamp, EpisodeConfig, EpisodeDriver, make_config
+from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, PHYSICAL_TEMP_BOUNDS_K, open_episode
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import PSI_TO_PA
 
@@ -113,10 +113,7 @@ class CabinetEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, config: EpisodeConfig | None = None, *, render_mode: str | None = None, **overrides: Any):
-        if render_mode is not None:
-            raise ValueError(f"CabinetEnv has no render modes, got render_mode={render_mode!r}")
-        self.config = make_config(config, overrides)
-        self.driver = EpisodeDriver(self.config)
+        self.config, self.driver = open_episode("CabinetEnv", config, render_mode, overrides)
         system = self.driver.system
         n_cab, n_br = system.cabinets.count, system.cabinets.branches
         self.n_cabinets, self.n_branches = n_cab, n_br

@@ -82,6 +82,16 @@ class EpisodeConfig:
             raise ValueError(f"`wet_bulb_offset_k` must be a finite number of kelvin, got {self.wet_bulb_offset_k}")
 
 
+def open_episode(
+    env_name: str, config: EpisodeConfig | None, render_mode: str | None, overrides: dict[str, Any]
+) -> tuple[EpisodeConfig, "EpisodeDriver"]:
+    """The shared start of every env's constructor: refuse render modes, merge config, start the driver."""
+    if render_mode is not None:
+        raise ValueError(f"{env_name} has no render modes, got render_mode={render_mode!r}")
+    merged = make_config(config, overrides)
+    return merged, EpisodeDriver(merged)
+
+
 def make_config(config: EpisodeConfig | None, overrides: dict[str, Any]) -> EpisodeConfig:
     """``config`` (or the defaults) with keyword overrides; unknown names say what is valid."""
     base = config or EpisodeConfig()

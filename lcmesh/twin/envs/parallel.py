@@ -32,7 +32,7 @@ from lcmesh.twin.envs.cabinet import (
     CabinetActuator,
     cabinet_reward_terms,
 )
-from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, EpisodeDriver, make_config
+from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, open_episode
 from lcmesh.twin.envs.tower import N_LW_ACTIONS, TowerActuator
 from lcmesh.twin.envs.wrappers import UnitScale
 
@@ -47,11 +47,8 @@ class CoolingParallelEnv(ParallelEnv):
     metadata = {"name": "lcmesh_cooling_v0", "render_modes": []}
 
     def __init__(self, config: EpisodeConfig | None = None, *, render_mode: str | None = None, **overrides: Any):
-        if render_mode is not None:
-            raise ValueError(f"CoolingParallelEnv has no render modes, got render_mode={render_mode!r}")
         self.render_mode = None
-        self.config = make_config(config, overrides)
-        self.driver = EpisodeDriver(self.config)
+        self.config, self.driver = open_episode("CoolingParallelEnv", config, render_mode, overrides)
         system = self.driver.system
         C, B = system.cabinets.count, system.cabinets.branches
         N, m = system.towers.count, system.towers.cells

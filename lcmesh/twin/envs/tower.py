@@ -23,7 +23,7 @@ from gymnasium import spaces
 
 from lcmesh.twin.controllers.static import APPROACH_10F_K
 from lcmesh.twin.envs.cabinet import TEMP_SCALE_RANGE_K
-from lcmesh.twin.envs.episode import PHYSICAL_TEMP_BOUNDS_K, Clamp, EpisodeConfig, EpisodeDriver, make_config
+from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, PHYSICAL_TEMP_BOUNDS_K, open_episode
 from lcmesh.twin.plant import PlantAction
 
 LW_SETPOINT_DELTAS_K = np.round(np.linspace(-0.20, 0.20, 9), 10)
@@ -67,10 +67,7 @@ class TowerEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, config: EpisodeConfig | None = None, *, render_mode: str | None = None, **overrides: Any):
-        if render_mode is not None:
-            raise ValueError(f"TowerEnv has no render modes, got render_mode={render_mode!r}")
-        self.config = make_config(config, overrides)
-        self.driver = EpisodeDriver(self.config)
+        self.config, self.driver = open_episode("TowerEnv", config, render_mode, overrides)
         system = self.driver.system
         n_towers, n_cells = system.towers.count, system.towers.cells
         self.n_towers, self.n_cells_per_tower = n_towers, n_cells
