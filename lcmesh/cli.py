@@ -121,7 +121,7 @@ def twin_run(
     system: SystemOpt = "lcopt-5",
     trace: Annotated[str, typer.Option(help="frontier-2024-04-07, synthetic:SEED or a CSV path")] = "frontier-2024-04-07",
     hours: Annotated[float, typer.Option(help="simulated hours (capped at the trace length)")] = 24.0,
-    controller: Annotated[str, typer.Option(help="static (more with the controllers issue)")] = "static",
+    controller: Annotated[str, typer.Option(help="static or g36 (ppo, tree: the controllers issue)")] = "static",
     wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb (LC-Opt's hardening: 15)")] = 15.0,
     json_out: JsonOpt = None,
     plot: Annotated[Optional[Path], typer.Option(help="PNG plot (default: beside --json)")] = None,

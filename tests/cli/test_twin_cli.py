@@ -58,3 +58,10 @@ def test_twin_validate_json(tmp_path):
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())
     assert report["passed"] and len(report["checks"]) == 6
+
+
+def test_twin_run_with_the_g36_baseline(tmp_path):
+    out = tmp_path / "g36.json"
+    result = runner.invoke(app, ["twin", "run", "--controller", "g36", "--hours", "1", "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.read_text())["controller"] == "g36"

@@ -12,6 +12,7 @@ from lcmesh.twin.controllers.base import Controller, Observation
 
 REGISTRY: dict[str, str] = {
     "static": "lcmesh.twin.controllers.static:StaticController",
+    "g36": "lcmesh.twin.controllers.g36:G36Controller",
 }
 
 
