@@ -23,11 +23,10 @@ from __future__ import annotations
 
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, PHYSICAL_TEMP_BOUNDS_K, open_episode
+from lcmesh.twin.envs.episode import PHYSICAL_TEMP_BOUNDS_K, Clamp, EpisodeConfig, TwinEnv, open_episode
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import PSI_TO_PA
 
@@ -103,7 +102,7 @@ def cabinet_reward_terms(
     return temperature, shaping
 
 
-class CabinetEnv(gym.Env):
+class CabinetEnv(TwinEnv):
     """LC-Opt's blade-group MDP over all cabinets; towers follow the static rule.
 
     ``CabinetEnv(config=None, **overrides)``: an :class:`EpisodeConfig`, and/or its fields as
@@ -133,13 +132,6 @@ class CabinetEnv(gym.Env):
         self._branch_temp_k, self._branch_power_w = out["branch_temp_k"], out["branch_power_w"]
         self._ct_fan_power_w = out["ct_fan_power_w"]
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
-        start_row = options.get("start_row") if options else None
-        self.driver.reset(self.np_random, start_row)
-        info = {"time_s": self.driver.time_s, "start_row": self.driver.start_row}
-        return self._observe(), info
-
     def step(self, action: np.ndarray):
         clamped = self.actuator.apply(action, self._action)
         self._action.lw_setpoint_k[:] = self.driver.default_action().lw_setpoint_k
@@ -162,6 +154,3 @@ class CabinetEnv(gym.Env):
         obs[:, : self.n_branches] = self._branch_temp_k
         obs[:, self.n_branches :] = self._branch_power_w
         return obs
-
-    def close(self) -> None:
-        self.driver.close()

@@ -20,6 +20,7 @@ import operator
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+import gymnasium as gym
 import numpy as np
 
 from lcmesh.twin.controllers import Observation
@@ -80,6 +81,27 @@ class EpisodeConfig:
             raise ValueError(f"`spin_up_hours` must be >= 0, got {self.spin_up_hours}")
         if not math.isfinite(self.wet_bulb_offset_k):
             raise ValueError(f"`wet_bulb_offset_k` must be a finite number of kelvin, got {self.wet_bulb_offset_k}")
+
+
+class TwinEnv(gym.Env):
+    """What the single-agent envs share: reset through the episode driver, close it.
+
+    Subclasses set ``self.driver`` (see :func:`open_episode`) and define ``_observe()``.
+    """
+
+    driver: "EpisodeDriver"
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        start_row = options.get("start_row") if options else None
+        self.driver.reset(self.np_random, start_row)
+        return self._observe(), {"time_s": self.driver.time_s, "start_row": self.driver.start_row}
+
+    def _observe(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self.driver.close()
 
 
 def open_episode(

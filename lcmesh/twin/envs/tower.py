@@ -17,13 +17,12 @@ from __future__ import annotations
 
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from lcmesh.twin.controllers.static import APPROACH_10F_K
 from lcmesh.twin.envs.cabinet import TEMP_SCALE_RANGE_K
-from lcmesh.twin.envs.episode import Clamp, EpisodeConfig, PHYSICAL_TEMP_BOUNDS_K, open_episode
+from lcmesh.twin.envs.episode import PHYSICAL_TEMP_BOUNDS_K, Clamp, EpisodeConfig, TwinEnv, open_episode
 from lcmesh.twin.plant import PlantAction
 
 LW_SETPOINT_DELTAS_K = np.round(np.linspace(-0.20, 0.20, 9), 10)
@@ -57,7 +56,7 @@ class TowerActuator:
         return clamped
 
 
-class TowerEnv(gym.Env):
+class TowerEnv(TwinEnv):
     """LC-Opt's cooling-tower MDP over all towers; cabinets follow the static rule.
 
     ``TowerEnv(config=None, **overrides)``: an :class:`EpisodeConfig`, and/or its fields as keywords.
@@ -94,13 +93,6 @@ class TowerEnv(gym.Env):
         self._ct_fan_power_w = out["ct_fan_power_w"]
         self._n_power = n_power
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
-        start_row = options.get("start_row") if options else None
-        self.driver.reset(self.np_random, start_row)
-        info = {"time_s": self.driver.time_s, "start_row": self.driver.start_row}
-        return self._observe(), info
-
     def step(self, action: np.ndarray):
         clamped = self.actuator.apply(action, self.driver.wet_bulb_k, self._action)
         default = self.driver.default_action()
@@ -125,6 +117,3 @@ class TowerEnv(gym.Env):
         obs[n:-1] = self._leaving_temp_k
         obs[-1] = self.driver.wet_bulb_k
         return obs
-
-    def close(self) -> None:
-        self.driver.close()
