@@ -6,8 +6,6 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from lcmesh.twin.plant import PlantAction
-
 BLADE_LOWER_C, BLADE_UPPER_C = 20.0, 40.0
 _K = 273.15
 
@@ -33,7 +31,8 @@ class KpiAccumulator:
         """Record the energy counters at the start of the run window."""
         self._energy0 = _energy(out)
 
-    def add(self, out: Mapping[str, np.ndarray], action: PlantAction) -> None:
+    def add(self, out: Mapping[str, np.ndarray]) -> None:
+        """One step's outputs; actuator travel is measured on the applied (post-clamp) setpoints."""
         temps = out["blade_temp_k"]
         self._in_band += int(np.count_nonzero((temps > self.lower_k) & (temps < self.upper_k)))
         self._samples += temps.size

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.twin.fmu_build import build_fmu
+from lcmesh.twin.fmu_layout import build_layout
 from lcmesh.twin.fmu_runner import FmuRunner, FmuState
 from lcmesh.twin.system import SystemDescription
 
@@ -73,11 +74,15 @@ class Plant:
         instance_name: str = "lcmesh",
     ):
         self.system = system
-        self.fmu_path = Path(fmu_path) if fmu_path else build_fmu(system).path
+        if fmu_path is None:
+            built = build_fmu(system)
+            self.fmu_path, layout = built.path, built.layout
+        else:
+            self.fmu_path, layout = Path(fmu_path), build_layout(system)
         self.runner = FmuRunner(self.fmu_path, variable_map=variable_map, instance_name=instance_name)
-        C, B = system.cabinets.count, system.cabinets.branches
+        C = system.cabinets.count
         N, m = system.towers.count, system.towers.cells
-        self.shapes = _block_shapes(system)
+        self.shapes = {b.name: b.shape for b in layout.blocks}
         self._inputs = self.runner.channel("blade_power_w", "wet_bulb_k", *ACTION_BLOCKS)
         self.inp = _views(self._inputs.values, ("blade_power_w", "wet_bulb_k", *ACTION_BLOCKS), self.shapes)
         self._faults = self.runner.channel(*FAULT_BLOCKS) if all(map(self.runner.has, FAULT_BLOCKS)) else None
@@ -93,7 +98,6 @@ class Plant:
         self.runner.initialize()
         self._outputs.read()
         self.n_steps_done = 0
-        assert self.inp["valve_fraction"].shape == (C, B)
 
     def default_action(self) -> PlantAction:
         """The description's design setpoints, equal valve split."""
@@ -173,12 +177,6 @@ class Plant:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _block_shapes(system: SystemDescription) -> dict[str, tuple[int, ...]]:
-    from lcmesh.twin.fmu_layout import build_layout
-
-    return {b.name: b.shape for b in build_layout(system).blocks}
 
 
 def _views(buffer: np.ndarray, names, shapes) -> dict[str, np.ndarray]:

@@ -76,7 +76,7 @@ def run_twin(
         trace.blade_power_w(k, out=power)
         action = controller.act(Observation(out, wet_bulb, power, k * trace.step_s))
         out = plant.step(power, wet_bulb, action)
-        kpi.add(out, action)
+        kpi.add(out)
         if k % record_every == 0:
             rec.add(k * trace.step_s + trace.step_s, wet_bulb, out)
         if on_step is not None:
