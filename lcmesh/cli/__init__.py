@@ -1,0 +1,9 @@
+"""The ``lcmesh`` command line (user-facing names fixed by DESIGN.md).
+
+Each area registers its commands on the shared apps in its own module; importing the modules here wires them.
+"""
+
+from lcmesh.cli.common import app
+from lcmesh.cli import api, control, explain, llm, mesh, twin  # noqa: F401  (each registers its commands)
+
+__all__ = ["app"]

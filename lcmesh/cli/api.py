@@ -1,0 +1,3 @@
+"""lcmesh bench api (the UI agent issue)."""
+
+from __future__ import annotations

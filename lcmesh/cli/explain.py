@@ -1,0 +1,3 @@
+"""lcmesh explain-eval (explanation scoring)."""
+
+from __future__ import annotations
