@@ -13,6 +13,9 @@ from lcmesh.twin.controllers.base import Controller, Observation
 REGISTRY: dict[str, str] = {
     "static": "lcmesh.twin.controllers.static:StaticController",
     "g36": "lcmesh.twin.controllers.g36:G36Controller",
+    "ppo": "lcmesh.distill.policy:PpoController",
+    "tree": "lcmesh.distill.trees:TreeController",
+    "llm": "lcmesh.llm.controller:LlmController",
 }
 
 

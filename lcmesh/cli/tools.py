@@ -1,0 +1,3 @@
+"""lcmesh bench maintenance (the toolbox and fault-detector benchmark)."""
+
+from __future__ import annotations

@@ -1,0 +1,1 @@
+"""Policy distillation: PPO teacher, experience with VIPER weights, trees, the LLM."""

@@ -1,0 +1,1 @@
+"""The agent mesh: Zenoh bus, messages, agents, toolbox."""

@@ -1,0 +1,1 @@
+"""The math toolbox: pure functions the agents and explanations cite, plus guardrails and explanation scoring."""

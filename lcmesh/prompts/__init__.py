@@ -1,0 +1,1 @@
+"""Prompt templates (package data): explanation levels, controller I/O, chat."""
