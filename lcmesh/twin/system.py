@@ -105,7 +105,7 @@ class CabinetGroup(_Strict):
     count: int = Field(ge=1, le=1000, description="C: CDU-cabinet pairs")
     branches: int = Field(ge=1, le=64, description="B: valve-controlled blade-group branches per cabinet")
     blade_groups_per_branch: int = Field(ge=1, le=10_000, default=1)
-    design_heat_w: float = Field(gt=0, default=250e3, description="mean IT load of a cabinet; traces are scaled to it")
+    design_heat_w: float = Field(gt=0, default=225e3, description="mean IT load of a cabinet; traces are scaled to it")
     coolant_volume_m3: float = Field(gt=0, default=0.083)
     blade_group: BladeGroupParams = BladeGroupParams()
     cdu: CduParams = CduParams()

@@ -22,7 +22,7 @@ a column circularly shifted in time by a seeded 1/24 to 23/24 of the trace lengt
 the CSV's deg C + 273.15 + ``wet_bulb_offset_k`` (LC-Opt uses +15 K; default 0).
 
 Skew (all seeded from ``system.load_skew_seed``; the branch schedule also from the seed of a
-synthetic trace): each cabinet has a base branch pattern (for B = 3 about 0.15/0.30/0.55,
+synthetic trace): each cabinet has a base branch pattern (for B = 3 about 0.03/0.16/0.81,
 shares in geometric progression with ratio ``_SHARE_RATIO`` between largest and smallest,
 lognormal jitter, random order). Its assignment to branches rotates by one branch every
 ``period`` seconds (30 to 90 min, per cabinet, random phase); each rotation blends over the
@@ -59,7 +59,7 @@ _TIME_COL = "time"
 _WET_BULB_COL = "OA Wetbulb Temp"
 _POWER_COL = re.compile(r"^power\[(\d+)\]$")
 
-_SHARE_RATIO = 0.55 / 0.15  # largest / smallest branch share of a base pattern
+_SHARE_RATIO = 25.0  # largest / smallest branch share of a base pattern (B = 3: about 0.03/0.16/0.81)
 _SHARE_JITTER_SIGMA = 0.1
 _ROTATION_PERIOD_S = (1800.0, 5400.0)
 _TRANSITION_S = 300.0

@@ -135,8 +135,9 @@ def test_branch_shares_differ_and_rotate(lcopt5):
 def test_branch_shares_change_smoothly(lcopt5):
     trace = load_trace(FRONTIER_DAY, lcopt5)
     shares = trace.branch_shares(np.arange(trace.n_steps))
-    # 5 min smoothstep, <= 0.5 share swing: at most 1.5 * 0.5 / 20 = 0.0375 a step
-    assert np.abs(np.diff(shares, axis=0)).max() < 0.05
+    # 5 min smoothstep (max slope 1.5), <= 0.85 share swing (B = 3: about 0.03 <-> 0.81):
+    # at most 1.5 * 0.85 / 20 = 0.064 a step; a jump would move up to 0.8 at once
+    assert np.abs(np.diff(shares, axis=0)).max() < 0.07
 
 
 def test_skew_depends_on_load_skew_seed(lcopt5):
