@@ -1,0 +1,175 @@
+"""What the learned policies see and do: per-cabinet and per-tower rows, and their decoding.
+
+Every learned controller (PPO, trees, the LLM) reads the same rows, built from an
+:class:`~lcmesh.twin.controllers.base.Observation` only, so a policy runs wherever a controller runs
+(twin, envs, mesh). Rows are per cabinet and per tower (LC-Opt's state decomposition, sec. 4.1);
+their width depends on B (branches) and m (cells) only, so a policy trained on lcopt-5 runs on any
+C and N with the same B and m. :class:`FeatureLayout` names every column; a policy file carries its
+layout and is refused on a system whose layout differs.
+
+Cabinet row (4B + 3): branch mean temperatures, branch hottest-blade temperatures, branch powers of
+the coming step (per unit of the design branch load), branch power shares, the CDU's measured supply
+temperature, the HTW supply temperature, the wet bulb.
+Tower row (m + 6): its cells' fan powers (per unit of nominal), its leaving-water temperature, the
+mean leaving-water temperature of all towers, the HTW return temperature, the wet bulb, its present
+approach setpoint (leaving-water setpoint minus wet bulb), the plant's hottest blade.
+
+Cabinet action (2 + B, in [-1, 1] before decoding): supply setpoint over 20..40 degC, dp setpoint
+over 25..38 psi, B valve weights (mapped to [0, 1] and normalized to sum to 1; the multi-head policy
+emits the split directly). Tower action: one of ``APPROACH_STEPS_K``, added to the approach setpoint,
+which is held within [approach_min, ``APPROACH_MAX_K``].
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from lcmesh.twin.controllers.base import Observation
+from lcmesh.twin.plant import PlantAction
+from lcmesh.twin.system import PSI_TO_PA, SystemDescription
+
+K = 273.15
+SUPPLY_RANGE_K = (K + 20.0, K + 40.0)
+DP_RANGE_PA = (25.0 * PSI_TO_PA, 38.0 * PSI_TO_PA)
+APPROACH_STEPS_K = (-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0)
+APPROACH_MAX_K = 10.0
+APPROACH_START_K = 10.0 / 1.8  # the static rule's wet bulb + 10 degF
+VALVE_FLOOR = 0.02  # smallest valve fraction a decoded split keeps (no branch is ever shut)
+
+_T_CENTER_K, _T_SCALE_K = K + 35.0, 5.0
+_WB_CENTER_K, _WB_SCALE_K = K + 20.0, 10.0
+
+
+@dataclass(frozen=True)
+class FeatureLayout:
+    """Column names of the cabinet and tower rows; a policy is valid only for an equal layout."""
+
+    branches: int
+    cells: int
+    version: int = 1
+
+    @property
+    def cabinet_columns(self) -> tuple[str, ...]:
+        b = range(self.branches)
+        return (
+            *(f"branch_temp[{j}]" for j in b), *(f"branch_max_temp[{j}]" for j in b),
+            *(f"branch_power[{j}]" for j in b), *(f"branch_share[{j}]" for j in b),
+            "supply_temp", "htw_supply_temp", "wet_bulb",
+        )  # fmt: skip
+
+    @property
+    def tower_columns(self) -> tuple[str, ...]:
+        return (
+            *(f"cell_fan_power[{j}]" for j in range(self.cells)),
+            "leaving_temp", "mean_leaving_temp", "htw_return_temp", "wet_bulb", "approach_setpoint", "max_blade_temp",
+        )  # fmt: skip
+
+    @property
+    def cabinet_action_columns(self) -> tuple[str, ...]:
+        return ("supply_temp_setpoint", "dp_setpoint", *(f"valve[{j}]" for j in range(self.branches)))
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def for_system(cls, system: SystemDescription) -> "FeatureLayout":
+        return cls(branches=system.cabinets.branches, cells=system.towers.cells)
+
+    def check(self, system: SystemDescription, what: str) -> None:
+        """Refuse a policy whose rows do not fit ``system`` (clear message, never a silent misfit)."""
+        other = FeatureLayout.for_system(system)
+        if other != self:
+            raise ValueError(
+                f"{what} was trained for B={self.branches} branches and m={self.cells} cells per tower "
+                f"(feature layout v{self.version}); system {system.name!r} has B={other.branches}, m={other.cells} "
+                f"(layout v{other.version}). Retrain or distill for this system."
+            )
+
+
+class FeatureBuilder:
+    """Builds cabinet rows (C, 4B+3) and tower rows (N, m+6) from observations, into reused buffers."""
+
+    def __init__(self, system: SystemDescription):
+        cab, tw = system.cabinets, system.towers
+        self.C, self.B, self.G = cab.count, cab.branches, cab.blade_groups_per_branch
+        self.N, self.m = tw.count, tw.cells
+        self.layout = FeatureLayout.for_system(system)
+        self.design_branch_w = cab.design_heat_w / self.B
+        self.fan_nominal_w = tw.cell.fan_power_nominal_w
+        self.cabinet = np.zeros((self.C, len(self.layout.cabinet_columns)), dtype=np.float32)
+        self.tower = np.zeros((self.N, len(self.layout.tower_columns)), dtype=np.float32)
+
+    def cabinet_rows(self, obs: Observation) -> np.ndarray:
+        C, B = self.C, self.B
+        out, x = obs.out, self.cabinet
+        x[:, 0:B] = (out["branch_temp_k"].reshape(C, B) - _T_CENTER_K) / _T_SCALE_K
+        x[:, B : 2 * B] = (out["branch_max_temp_k"].reshape(C, B) - _T_CENTER_K) / _T_SCALE_K
+        power = np.asarray(obs.blade_power_w).reshape(C, B, self.G).sum(axis=2)
+        x[:, 2 * B : 3 * B] = power / self.design_branch_w - 1.0
+        x[:, 3 * B : 4 * B] = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
+        x[:, 4 * B] = (out["supply_temp_k"] - _T_CENTER_K) / _T_SCALE_K
+        x[:, 4 * B + 1] = (float(np.mean(out["htw_supply_temp_k"])) - _T_CENTER_K) / _T_SCALE_K
+        x[:, 4 * B + 2] = (obs.wet_bulb_k - _WB_CENTER_K) / _WB_SCALE_K
+        return x
+
+    def tower_rows(self, obs: Observation) -> np.ndarray:
+        N, m = self.N, self.m
+        out, x = obs.out, self.tower
+        leaving = out["ct_leaving_temp_k"].reshape(N)
+        x[:, 0:m] = out["cell_fan_power_w"].reshape(N, m) / self.fan_nominal_w
+        x[:, m] = (leaving - _T_CENTER_K) / _T_SCALE_K
+        x[:, m + 1] = (leaving.mean() - _T_CENTER_K) / _T_SCALE_K
+        x[:, m + 2] = (float(np.mean(out["htw_return_temp_k"])) - _T_CENTER_K) / _T_SCALE_K
+        x[:, m + 3] = (obs.wet_bulb_k - _WB_CENTER_K) / _WB_SCALE_K
+        x[:, m + 4] = (out["applied_lw_setpoint_k"].reshape(N) - obs.wet_bulb_k - APPROACH_START_K) / 2.0
+        x[:, m + 5] = (float(out["blade_temp_k"].max()) - _T_CENTER_K) / _T_SCALE_K
+        return x
+
+
+def decode_cabinet(u: np.ndarray, target: PlantAction, valves_given: bool = False) -> None:
+    """Write (C, 2+B) policy outputs in [-1, 1] (valves already a split if ``valves_given``) into ``target``."""
+    u = np.clip(u, -1.0, 1.0) if not valves_given else u
+    lo, hi = SUPPLY_RANGE_K
+    target.supply_temp_setpoint_k[:] = lo + (np.clip(u[:, 0], -1, 1) + 1.0) * 0.5 * (hi - lo)
+    lo, hi = DP_RANGE_PA
+    target.dp_setpoint_pa[:] = lo + (np.clip(u[:, 1], -1, 1) + 1.0) * 0.5 * (hi - lo)
+    if u.shape[1] > 2:
+        w = u[:, 2:] if valves_given else (u[:, 2:] + 1.0) * 0.5
+        target.valve_fractions[:] = normalize_split(w)
+
+
+def normalize_split(weights: np.ndarray) -> np.ndarray:
+    """Valve weights (C, B) >= 0 to fractions that sum to 1, each at least ``VALVE_FLOOR``."""
+    w = np.maximum(np.nan_to_num(np.asarray(weights, dtype=np.float64), nan=0.0), 0.0)
+    total = w.sum(axis=1, keepdims=True)
+    w = np.where(total > 1e-9, w / np.maximum(total, 1e-9), 1.0 / w.shape[1])
+    B = w.shape[1]
+    return VALVE_FLOOR + (1.0 - B * VALVE_FLOOR) * w
+
+
+def encode_cabinet(action: PlantAction) -> np.ndarray:
+    """The inverse of :func:`decode_cabinet` for the first two columns, valves as fractions: (C, 2+B)."""
+    lo, hi = SUPPLY_RANGE_K
+    s = 2.0 * (action.supply_temp_setpoint_k - lo) / (hi - lo) - 1.0
+    lo, hi = DP_RANGE_PA
+    d = 2.0 * (action.dp_setpoint_pa - lo) / (hi - lo) - 1.0
+    return np.column_stack([s, d, action.valve_fractions])
+
+
+class TowerSetpoints:
+    """Holds each tower's approach setpoint and applies discrete steps to it."""
+
+    def __init__(self, system: SystemDescription):
+        self.N = system.towers.count
+        self.min_approach_k = max(system.towers.cell.approach_min_k, 1.0)
+        self.approach_k = np.full(self.N, APPROACH_START_K)
+
+    def reset(self) -> None:
+        self.approach_k[:] = APPROACH_START_K
+
+    def apply(self, choice: np.ndarray, wet_bulb_k: float, target: PlantAction) -> None:
+        steps = np.asarray(APPROACH_STEPS_K)[np.clip(np.asarray(choice, dtype=np.int64), 0, len(APPROACH_STEPS_K) - 1)]
+        np.clip(self.approach_k + steps, self.min_approach_k, APPROACH_MAX_K, out=self.approach_k)
+        target.lw_setpoint_k[:] = wet_bulb_k + self.approach_k

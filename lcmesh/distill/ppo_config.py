@@ -1,0 +1,81 @@
+"""The PPO ablation's cases and training config (no torch import, so the CLI stays fast)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Case:
+    tower: str | None  # None (G36), "joint" (decentralized) or "ca" (centralized action)
+    cabinet: str | None
+    valves: bool = True
+    multihead: bool = False
+    title: str = ""
+
+
+CASES: dict[int, Case] = {
+    2: Case("joint", None, title="CT RL + BG baseline"),
+    3: Case(None, "joint", valves=False, title="CT baseline + BG RL, no valve control"),
+    4: Case(None, "joint", title="CT baseline + BG RL, with valve control"),
+    5: Case("joint", "joint", title="Multi-agent RL, decentralized action"),
+    6: Case("ca", "ca", title="Multi-agent RL, centralized action"),
+    7: Case("ca", "ca", multihead=True, title="Multi-agent RL, centralized action + multi-head"),
+}
+
+
+@dataclass
+class PpoConfig:
+    """``lcmesh train ppo`` settings; defaults train case 7 on lcopt-5 within the 60-minute CPU budget."""
+
+    case: int = 7
+    """Ablation case 2..7 (Table 3); case 1 is G36 and needs no training."""
+    system: str = "lcopt-5"
+    """System to train on (reference name or JSON path)."""
+    total_env_steps: int = 480_000
+    """Plant steps over all parallel envs (the paper: 2e6)."""
+    n_envs: int = 8
+    """Parallel training plants, each on its own synthetic trace."""
+    episode_steps: int = 200
+    """Steps per episode and per rollout (LC-Opt's max_ep_len); update interval = n_envs * episode_steps."""
+    refresh_envs_per_update: int = 1
+    """Envs given a fresh training trace (next seed) after every update."""
+    seed: int = 0
+    cabinet_lr_actor: float = 3e-4
+    cabinet_lr_critic: float = 1e-3
+    cabinet_gamma: float = 0.80
+    tower_lr_actor: float = 6e-4
+    tower_lr_critic: float = 1e-3
+    tower_gamma: float = 0.95
+    gae_lambda: float = 0.95
+    clip: float = 0.2
+    epochs: int = 10
+    """PPO epochs per update (the paper: 50; see the module docstring)."""
+    minibatch: int = 256
+    """Samples per gradient step (the paper: 32)."""
+    ent_coef: float = 0.01
+    cabinet_vf_coef: float = 0.5
+    tower_vf_coef: float = 0.6
+    init_std: float = 0.6
+    min_std: float = 0.1
+    max_grad_norm: float = 0.5
+    eval_every: int = 10
+    """Updates between validation runs (checkpoint selection)."""
+    eval_trace: str = "synthetic:1000"
+    """Validation trace: an evaluation seed, never a training one, and not the Frontier day (the test trace)."""
+    eval_hours: float = 24.0
+    eval_ct_weight_per_kw: float = 0.02
+    """Checkpoint score = d_blade_pct - this * ct_power_kw_avg (2 points per 100 kW of fans)."""
+    threads: int = 1
+    """torch threads (the envs step on one core; more threads rarely help nets this small)."""
+    out: str = "runs/ppo"
+    """Run folder: config, CSV log, checkpoints, plots."""
+
+    def __post_init__(self) -> None:
+        if self.case not in CASES:
+            raise ValueError(f"`case` must be one of {sorted(CASES)} (case 1 is G36, no training), got {self.case}")
+        for name in ("total_env_steps", "n_envs", "episode_steps", "epochs", "minibatch", "eval_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
+        if not 0 < self.min_std <= self.init_std:
+            raise ValueError(f"need 0 < `min_std` <= `init_std`, got {self.min_std}, {self.init_std}")

@@ -1,0 +1,130 @@
+"""Vectorized training plants for the PPO ablation: E twins stepped together, rows and rewards out.
+
+Each plant runs its own synthetic training trace (seeds from ``TRAIN_SEEDS`` only) with LC-Opt's
++15 K wet-bulb hardening and random 200-step windows. G36 drives whatever the case leaves to the
+baseline. Rewards (per cabinet and per tower) are written for this problem's KPIs:
+
+- cabinet i: ``-0.1 * (mean branch temperature - 35 degC) - mean_g max(0, T_g - 38.5 degC)
+  - 0.5 * sum_j |v_ij - P_ij / sum_j P_ij|``: cool, keep every blade group below the band's top
+  with a margin, and split the flow like the heat (LC-Opt's valve term);
+- tower j: ``-sum of its cells' fan power / (m * nominal)`` (LC-Opt eq. 17, scaled)
+  ``- 2 * mean over all blade groups of max(0, T_g - 38.5 degC)``: the towers share the blades'
+  overheating, otherwise a fan-power-only tower agent starves the CDUs of cold water.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from lcmesh.distill.features import FeatureBuilder, TowerSetpoints, decode_cabinet
+from lcmesh.twin.controllers.g36 import G36Controller
+from lcmesh.twin.envs.episode import EpisodeConfig, EpisodeDriver
+from lcmesh.twin.plant import PlantAction
+
+OVERHEAT_MARGIN_K = 273.15 + 38.5
+TEMP_REF_K = 273.15 + 35.0
+VALVE_TERM_WEIGHT = 0.5
+TOWER_OVERHEAT_WEIGHT = 2.0
+
+
+class TrainPlants:
+    """E plants with their baseline, tower setpoint holder and feature builder."""
+
+    def __init__(self, system: str, seeds: Iterator[int], n_envs: int, episode_steps: int, wet_bulb_offset_k: float = 15.0):
+        self.seeds = seeds
+        self.episode_steps = episode_steps
+        self.wet_bulb_offset_k = wet_bulb_offset_k
+        self.system_name = system
+        self.drivers = [self._driver() for _ in range(n_envs)]
+        self.system = self.drivers[0].system
+        s = self.system
+        self.C, self.B, self.G = s.cabinets.count, s.cabinets.branches, s.cabinets.blade_groups_per_branch
+        self.N, self.m = s.towers.count, s.towers.cells
+        self.features = [FeatureBuilder(s) for _ in self.drivers]
+        self.baselines = [G36Controller(s) for _ in self.drivers]
+        self.towers = [TowerSetpoints(s) for _ in self.drivers]
+        self.actions = [PlantAction(np.zeros(self.C), np.zeros(self.C), np.zeros((self.C, self.B)), np.zeros(self.N)) for _ in self.drivers]
+        self.fan_norm = 1.0 / (self.m * s.towers.cell.fan_power_nominal_w)
+
+    def _driver(self) -> EpisodeDriver:
+        config = EpisodeConfig(
+            system=self.system_name, trace=f"synthetic:{next(self.seeds)}", wet_bulb_offset_k=self.wet_bulb_offset_k,
+            episode_steps=self.episode_steps,
+        )  # fmt: skip
+        return EpisodeDriver(config)
+
+    @property
+    def n_envs(self) -> int:
+        return len(self.drivers)
+
+    def refresh(self, index: int) -> None:
+        """Give env ``index`` a fresh training trace (the next seed)."""
+        self.drivers[index].close()
+        self.drivers[index] = self._driver()
+
+    def reset(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        for e, driver in enumerate(self.drivers):
+            driver.reset(rng)
+            self.baselines[e].reset()
+            self.towers[e].reset()
+        return self.rows()
+
+    def reset_one(self, e: int, rng: np.random.Generator) -> None:
+        """Restart env ``e`` after a thermal runaway (the other envs go on)."""
+        self.drivers[e].reset(rng)
+        self.baselines[e].reset()
+        self.towers[e].reset()
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cabinet rows (E, C, Fc) and tower rows (E, N, Ft) of the coming step."""
+        obs = [d.observation() for d in self.drivers]
+        cab = np.stack([f.cabinet_rows(o) for f, o in zip(self.features, obs)])
+        tow = np.stack([f.tower_rows(o) for f, o in zip(self.features, obs)])
+        return cab, tow
+
+    def step(
+        self, cabinet_u: np.ndarray | None, tower_choice: np.ndarray | None, *, valves: bool, valves_given: bool
+    ) -> dict[str, np.ndarray]:
+        """Apply the RL parts (None: G36), step every plant; rewards and KPI samples per env."""
+        E, C, N = self.n_envs, self.C, self.N
+        cab_r, tow_r = np.empty((E, C)), np.empty((E, N))
+        in_band, fan_kw = np.empty(E), np.empty(E)
+        terminated = np.zeros(E, dtype=bool)
+        for e, driver in enumerate(self.drivers):
+            obs = driver.observation()
+            action = self.actions[e]
+            base = self.baselines[e].act(obs)
+            for dst, src in zip(action.astuple(), base.astuple()):
+                dst[...] = src
+            if cabinet_u is not None:
+                decode_cabinet(cabinet_u[e], action, valves_given=valves_given)
+                if not valves:
+                    action.valve_fractions[:] = base.valve_fractions
+            if tower_choice is not None:
+                self.towers[e].apply(tower_choice[e], obs.wet_bulb_k, action)
+            out, term, _ = driver.step(action)
+            terminated[e] = term
+            cab_r[e], tow_r[e] = self._rewards(out, action)
+            in_band[e] = driver.in_band_fraction()
+            fan_kw[e] = float(out["ct_fan_power_w"]) / 1e3
+        return {"cabinet_reward": cab_r, "tower_reward": tow_r, "terminated": terminated,
+                "in_band": in_band, "ct_fan_kw": fan_kw}  # fmt: skip
+
+    def _rewards(self, out, action: PlantAction) -> tuple[np.ndarray, np.ndarray]:
+        C, B = self.C, self.B
+        blade = out["blade_temp_k"].reshape(C, B * self.G)
+        overheat = np.maximum(blade - OVERHEAT_MARGIN_K, 0.0).mean(axis=1)
+        power = out["branch_power_w"].reshape(C, B)
+        share = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
+        valve_term = np.abs(action.valve_fractions - share).sum(axis=1)
+        mean_t = out["branch_temp_k"].reshape(C, B).mean(axis=1)
+        cabinet = -0.1 * (mean_t - TEMP_REF_K) - overheat - VALVE_TERM_WEIGHT * valve_term
+        fans = out["cell_fan_power_w"].reshape(self.N, self.m).sum(axis=1) * self.fan_norm
+        tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean()
+        return cabinet, tower
+
+    def close(self) -> None:
+        for d in self.drivers:
+            d.close()
