@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 
-def update_benchmarks_md(path: Path, name: str, result: dict) -> None:
-    """Replace (or append) the section between ``<!-- bench:NAME -->`` markers."""
-    render = {"twin": render_twin}[name]
+def update_benchmarks_md(path: Path, name: str, result: dict, render: Callable[[dict], str] | None = None) -> None:
+    """Replace (or append) the section between ``<!-- bench:NAME -->`` markers (``render`` overrides the renderer)."""
+    render = render or {"twin": render_twin}[name]
     start, end = f"<!-- bench:{name}:start -->", f"<!-- bench:{name}:end -->"
     block = f"{start}\n{render(result)}\n{end}"
     text = path.read_text() if path.exists() else "# Benchmarks\n"

@@ -73,12 +73,50 @@ def _train_ppo(config) -> None:
     write_json(Path(config.out) / "summary.json", summary)
 
 
+def _distill_tree(config) -> None:
+    from lcmesh.distill.tree_distill import distill_trees
+
+    with console.status("distilling trees") as status:
+        report = distill_trees(config, on_step=lambda msg: status.update(msg))
+    for variant in ("viper", "naive"):
+        r = report[variant]
+        f = r["fidelity"]
+        console.print(
+            f"{variant}: reward gap {r['reward_gap_pct']:+.2f} % vs teacher, CDU R2 {f['cdu_r2']:.3f}, "
+            f"valve R2 {f.get('valve_r2', float('nan')):.3f}, tower accuracy {f.get('tower_accuracy', float('nan')):.3f}  "
+            f"-> {r['path']}"
+        )
+
+
 def _register() -> None:
     from lcmesh.distill.ppo_config import PpoConfig
+    from lcmesh.distill.tree_config import TreeDistillConfig
 
     train_app.command("ppo", help="Train a PPO ablation case (Table 3); writes a run folder with log, plots, policy.")(
         dataclass_options(PpoConfig, _train_ppo)
     )
+    distill_app.command("tree", help="VIPER-distill a PPO policy into decision/regression trees (Tables 12-15).")(
+        dataclass_options(TreeDistillConfig, _distill_tree)
+    )
 
 
 _register()
+
+
+@bench_app.command("control")
+def bench_control(
+    json_out: JsonOpt = None,
+    quick: Annotated[bool, typer.Option(help="2 h of the day, no scaling study or rewards (smoke run)")] = False,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+    plots: Annotated[Path, typer.Option(help="folder for the radar and time-series plots")] = Path("docs/img"),
+) -> None:
+    """Ablation (Table 3), scaling (Table 4), power-valve correlation (Table 5), trees (Tables 12-15)."""
+    from lcmesh.bench.control import render_control, run_bench_control
+    from lcmesh.bench.report import update_benchmarks_md
+
+    with console.status("benchmarking the controllers on the Frontier day"):
+        result = run_bench_control(quick=quick, plot_dir=plots)
+    write_json(json_out, result)
+    if markdown is not None:
+        update_benchmarks_md(markdown, "control", result, render=render_control)
+        console.print(f"updated {markdown}")

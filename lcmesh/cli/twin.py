@@ -77,7 +77,8 @@ def twin_run(
     system: SystemOpt = "lcopt-5",
     trace: Annotated[str, typer.Option(help="frontier-2024-04-07, synthetic:SEED or a CSV path")] = "frontier-2024-04-07",
     hours: Annotated[float, typer.Option(help="simulated hours (capped at the trace length)")] = 24.0,
-    controller: Annotated[str, typer.Option(help="static or g36 (ppo, tree: the controllers issue)")] = "static",
+    controller: Annotated[str, typer.Option(help="static, g36, ppo, tree or llm")] = "static",
+    policy: Annotated[Optional[str], typer.Option(help="policy file for ppo/tree/llm (default: the shipped one)")] = None,
     wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb (LC-Opt's hardening: 15)")] = 15.0,
     json_out: JsonOpt = None,
     plot: Annotated[Optional[Path], typer.Option(help="PNG plot (default: beside --json)")] = None,
@@ -93,8 +94,8 @@ def twin_run(
     desc = load_system_or_fail(system)
     try:
         tr = load_trace(trace, desc, wet_bulb_offset_k=wet_bulb_offset)
-        ctrl = make_controller(controller, desc)
-    except (TraceError, ValueError) as exc:
+        ctrl = make_controller(controller, desc, **({"policy": policy} if policy else {}))
+    except (TraceError, ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     n_steps = min(tr.n_steps, int(round(hours * 3600 / tr.step_s)))
     if n_steps < int(round(hours * 3600 / tr.step_s)):

@@ -16,8 +16,10 @@ approach setpoint (leaving-water setpoint minus wet bulb), the plant's hottest b
 
 Cabinet action (2 + B, in [-1, 1] before decoding): supply setpoint over 20..40 degC, dp setpoint
 over 25..38 psi, B valve weights (mapped to [0, 1] and normalized to sum to 1; the multi-head policy
-emits the split directly). Tower action: one of ``APPROACH_STEPS_K``, added to the approach setpoint,
-which is held within [approach_min, ``APPROACH_MAX_K``].
+emits the split directly). Tower action: one of the nine ``APPROACH_LEVELS_K``; the leaving-water
+setpoint is the wet bulb plus that approach (LC-Opt's discrete setpoint delta over the wet bulb).
+A first design added steps to the previous setpoint; its argmax policy drifted to one end of the
+range and stayed there, so the choice is absolute now.
 """
 
 from __future__ import annotations
@@ -33,8 +35,7 @@ from lcmesh.twin.system import PSI_TO_PA, SystemDescription
 K = 273.15
 SUPPLY_RANGE_K = (K + 20.0, K + 40.0)
 DP_RANGE_PA = (25.0 * PSI_TO_PA, 38.0 * PSI_TO_PA)
-APPROACH_STEPS_K = (-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0)
-APPROACH_MAX_K = 10.0
+APPROACH_LEVELS_K = (1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.5, 8.0)
 APPROACH_START_K = 10.0 / 1.8  # the static rule's wet bulb + 10 degF
 VALVE_FLOOR = 0.02  # smallest valve fraction a decoded split keeps (no branch is ever shut)
 
@@ -159,17 +160,17 @@ def encode_cabinet(action: PlantAction) -> np.ndarray:
 
 
 class TowerSetpoints:
-    """Holds each tower's approach setpoint and applies discrete steps to it."""
+    """Turns each tower's discrete choice into its leaving-water setpoint (wet bulb + approach level)."""
 
     def __init__(self, system: SystemDescription):
         self.N = system.towers.count
-        self.min_approach_k = max(system.towers.cell.approach_min_k, 1.0)
+        self.min_approach_k = max(system.towers.cell.approach_min_k, APPROACH_LEVELS_K[0])
         self.approach_k = np.full(self.N, APPROACH_START_K)
 
     def reset(self) -> None:
         self.approach_k[:] = APPROACH_START_K
 
     def apply(self, choice: np.ndarray, wet_bulb_k: float, target: PlantAction) -> None:
-        steps = np.asarray(APPROACH_STEPS_K)[np.clip(np.asarray(choice, dtype=np.int64), 0, len(APPROACH_STEPS_K) - 1)]
-        np.clip(self.approach_k + steps, self.min_approach_k, APPROACH_MAX_K, out=self.approach_k)
+        index = np.clip(np.asarray(choice, dtype=np.int64), 0, len(APPROACH_LEVELS_K) - 1)
+        np.maximum(np.asarray(APPROACH_LEVELS_K)[index], self.min_approach_k, out=self.approach_k)
         target.lw_setpoint_k[:] = wet_bulb_k + self.approach_k

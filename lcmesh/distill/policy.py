@@ -18,7 +18,7 @@ from torch import nn
 from torch.distributions import Categorical, Dirichlet, Normal
 
 from lcmesh.distill.features import (
-    APPROACH_STEPS_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
+    APPROACH_LEVELS_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
 )  # fmt: skip
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.controllers.g36 import G36Controller
@@ -271,4 +271,4 @@ def policy_mode(net: AgentNet, rows: np.ndarray, std: float) -> np.ndarray:
     return a.reshape(-1, net.spec.row_actions)
 
 
-__all__ = ["APPROACH_STEPS_K", "AgentNet", "AgentSpec", "PolicyFile", "PpoController", "load_policy", "save_policy"]
+__all__ = ["APPROACH_LEVELS_K", "AgentNet", "AgentSpec", "PolicyFile", "PpoController", "load_policy", "save_policy"]

@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from lcmesh.distill.features import APPROACH_STEPS_K, FeatureLayout
+from lcmesh.distill.features import APPROACH_LEVELS_K, FeatureLayout
 from lcmesh.distill.policy import AgentNet, AgentSpec, PolicyFile, PpoController, save_policy
 from lcmesh.distill.ppo_config import CASES, Case, PpoConfig
 from lcmesh.distill.ppo_env import TrainPlants
@@ -142,7 +142,7 @@ def build_trainers(cfg: PpoConfig, plants: TrainPlants) -> dict[str, AgentTraine
         )
     if case.tower is not None:
         spec = AgentSpec(
-            "categorical", len(layout.tower_columns), len(APPROACH_STEPS_K), rows=1 if case.tower == "ca" else plants.N,
+            "categorical", len(layout.tower_columns), len(APPROACH_LEVELS_K), rows=1 if case.tower == "ca" else plants.N,
             hidden_actor=(32, 64), hidden_critic=(32, 32),
         )  # fmt: skip
         trainers["tower"] = AgentTrainer(
@@ -172,7 +172,8 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     layout = FeatureLayout(plants.B, plants.m)
     steps_per_update = cfg.n_envs * cfg.episode_steps
     n_updates = max(1, cfg.total_env_steps // steps_per_update)
-    eval_trace = load_trace(cfg.eval_trace, system, wet_bulb_offset_k=15.0, hours=cfg.eval_hours)
+    eval_traces = [load_trace(spec.strip(), system, wet_bulb_offset_k=15.0, hours=cfg.eval_hours)
+                   for spec in cfg.eval_trace.split(",") if spec.strip()]  # fmt: skip
     eval_plant = Plant(system)
     log_path = out / "log.csv"
     log_file = log_path.open("w", newline="")
@@ -184,7 +185,7 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
         return PolicyFile(
             case=cfg.case, layout=layout.to_json(), agents={k: asdict(t.spec) for k, t in trainers.items()}, std=std,
             manifest={"version": f"case{cfg.case}-seed{cfg.seed}", "title": case.title, "system": system.name,
-                      "command": " ".join(sys.argv), "commit": _git_commit(), "seed": cfg.seed,
+                      "command": " ".join(sys.argv), "commit": git_commit(), "seed": cfg.seed,
                       "config": asdict(cfg), "metrics": metrics},
         )  # fmt: skip
 
@@ -220,7 +221,8 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
             if (update + 1) % cfg.eval_every == 0 or update == n_updates - 1:
                 nets = {k: t.net.eval() for k, t in trainers.items()}
                 ctrl = PpoController(system, loaded=(nets, meta(std, {})))
-                kpi = run_twin(eval_plant, eval_trace, ctrl).kpi
+                runs = [run_twin(eval_plant, tr, ctrl).kpi for tr in eval_traces]
+                kpi = {k: float(np.mean([r[k] for r in runs])) for k in ("d_blade_pct", "ct_power_kw_avg", "pump_power_kw_avg")}
                 score = kpi["d_blade_pct"] - cfg.eval_ct_weight_per_kw * kpi["ct_power_kw_avg"]
                 row.update({"val_d_blade_pct": kpi["d_blade_pct"], "val_ct_power_kw": kpi["ct_power_kw_avg"], "val_score": score})
                 metrics = {"validation": {"trace": cfg.eval_trace, "hours": cfg.eval_hours, **kpi}, "update": update + 1,
@@ -249,7 +251,7 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     return summary
 
 
-def _git_commit() -> str:
+def git_commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
                               cwd=Path(__file__).parent).stdout.strip()  # fmt: skip

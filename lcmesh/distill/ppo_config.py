@@ -32,7 +32,7 @@ class PpoConfig:
     """Ablation case 2..7 (Table 3); case 1 is G36 and needs no training."""
     system: str = "lcopt-5"
     """System to train on (reference name or JSON path)."""
-    total_env_steps: int = 480_000
+    total_env_steps: int = 320_000
     """Plant steps over all parallel envs (the paper: 2e6)."""
     n_envs: int = 8
     """Parallel training plants, each on its own synthetic trace."""
@@ -61,8 +61,9 @@ class PpoConfig:
     max_grad_norm: float = 0.5
     eval_every: int = 10
     """Updates between validation runs (checkpoint selection)."""
-    eval_trace: str = "synthetic:1000"
-    """Validation trace: an evaluation seed, never a training one, and not the Frontier day (the test trace)."""
+    eval_trace: str = "synthetic:1002,synthetic:1003,synthetic:1004,synthetic:1006"
+    """Validation traces (comma list) for checkpoint selection: evaluation seeds whose G36 score (82-88 %) is
+    like the Frontier day's, never a training seed, and not the Frontier day itself (the test trace)."""
     eval_hours: float = 24.0
     eval_ct_weight_per_kw: float = 0.02
     """Checkpoint score = d_blade_pct - this * ct_power_kw_avg (2 points per 100 kW of fans)."""

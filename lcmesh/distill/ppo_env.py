@@ -8,7 +8,7 @@ baseline. Rewards (per cabinet and per tower) are written for this problem's KPI
   - 0.5 * sum_j |v_ij - P_ij / sum_j P_ij|``: cool, keep every blade group below the band's top
   with a margin, and split the flow like the heat (LC-Opt's valve term);
 - tower j: ``-sum of its cells' fan power / (m * nominal)`` (LC-Opt eq. 17, scaled)
-  ``- 2 * mean over all blade groups of max(0, T_g - 38.5 degC)``: the towers share the blades'
+  ``- 3 * mean over all blade groups of max(0, T_g - 38.5 degC)``: the towers share the blades'
   overheating, otherwise a fan-power-only tower agent starves the CDUs of cold water.
 """
 
@@ -26,7 +26,7 @@ from lcmesh.twin.plant import PlantAction
 OVERHEAT_MARGIN_K = 273.15 + 38.5
 TEMP_REF_K = 273.15 + 35.0
 VALVE_TERM_WEIGHT = 0.5
-TOWER_OVERHEAT_WEIGHT = 2.0
+TOWER_OVERHEAT_WEIGHT = 3.0
 
 
 class TrainPlants:
@@ -113,18 +113,53 @@ class TrainPlants:
                 "in_band": in_band, "ct_fan_kw": fan_kw}  # fmt: skip
 
     def _rewards(self, out, action: PlantAction) -> tuple[np.ndarray, np.ndarray]:
-        C, B = self.C, self.B
-        blade = out["blade_temp_k"].reshape(C, B * self.G)
-        overheat = np.maximum(blade - OVERHEAT_MARGIN_K, 0.0).mean(axis=1)
-        power = out["branch_power_w"].reshape(C, B)
-        share = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
-        valve_term = np.abs(action.valve_fractions - share).sum(axis=1)
-        mean_t = out["branch_temp_k"].reshape(C, B).mean(axis=1)
-        cabinet = -0.1 * (mean_t - TEMP_REF_K) - overheat - VALVE_TERM_WEIGHT * valve_term
-        fans = out["cell_fan_power_w"].reshape(self.N, self.m).sum(axis=1) * self.fan_norm
-        tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean()
-        return cabinet, tower
+        return step_rewards(self.system, out, action)
 
     def close(self) -> None:
         for d in self.drivers:
             d.close()
+
+
+def step_rewards(system, out, action: PlantAction) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cabinet (C,) and per-tower (N,) rewards of the step just taken (see the module docstring)."""
+    cab, tw = system.cabinets, system.towers
+    C, B, N, m = cab.count, cab.branches, tw.count, tw.cells
+    blade = out["blade_temp_k"].reshape(C, -1)
+    overheat = np.maximum(blade - OVERHEAT_MARGIN_K, 0.0).mean(axis=1)
+    power = out["branch_power_w"].reshape(C, B)
+    share = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
+    valve_term = np.abs(action.valve_fractions - share).sum(axis=1)
+    mean_t = out["branch_temp_k"].reshape(C, B).mean(axis=1)
+    cabinet = -0.1 * (mean_t - TEMP_REF_K) - overheat - VALVE_TERM_WEIGHT * valve_term
+    fans = out["cell_fan_power_w"].reshape(N, m).sum(axis=1) / (m * tw.cell.fan_power_nominal_w)
+    tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean()
+    return cabinet, tower
+
+
+def episode_rewards(controller, system_name: str, seeds, steps: int = 200, wet_bulb_offset_k: float = 15.0) -> dict:
+    """Mean episode reward per cabinet and per tower of ``controller`` over evaluation episodes (Tables 12/14).
+
+    One episode per seed: the trace ``synthetic:SEED`` from row 0 (after the warm-up), ``steps`` steps.
+    """
+    cab_total, tow_total = [], []
+    for seed in seeds:
+        driver = EpisodeDriver(EpisodeConfig(system=system_name, trace=f"synthetic:{seed}",
+                                             wet_bulb_offset_k=wet_bulb_offset_k, episode_steps=steps, random_start=False))  # fmt: skip
+        try:
+            driver.reset(np.random.default_rng(0), start_row=0)
+            controller.reset()
+            cab, tow = 0.0, 0.0
+            for _ in range(steps):
+                action = controller.act(driver.observation())
+                out, terminated, truncated = driver.step(action)
+                c, t = step_rewards(driver.system, out, action)
+                cab += float(c.mean())
+                tow += float(t.mean())
+                if terminated or truncated:
+                    break
+            cab_total.append(cab)
+            tow_total.append(tow)
+        finally:
+            driver.close()
+    return {"cabinet_reward": float(np.mean(cab_total)), "tower_reward": float(np.mean(tow_total)), "episodes": len(cab_total)}
+

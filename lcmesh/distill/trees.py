@@ -1,0 +1,205 @@
+"""VIPER tree distillation (LC-Opt Appendix A, Tables 12-15) and the ``tree`` controller.
+
+The PPO teacher is rolled deterministically over training traces; every cabinet and tower decision
+gets its VIPER weight ``l(s) = log pi*(a*|s) - min_a log pi*(a|s)``; the dataset is resampled by those
+weights; then a classification tree learns the tower's discrete step, one regression tree the CDU
+controls (supply setpoint, dp) and one the valve split. Trees are stored as JSON node arrays (no
+pickle) and evaluated with numpy, so the controller needs neither sklearn nor torch at run time.
+``tree_rules`` prints a tree as nested if/else rules over named features in physical units.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lcmesh.distill.features import (
+    APPROACH_LEVELS_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
+)  # fmt: skip
+from lcmesh.twin.controllers.base import Observation
+from lcmesh.twin.controllers.g36 import G36Controller
+from lcmesh.twin.plant import PlantAction
+from lcmesh.twin.system import SystemDescription
+
+ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
+DEFAULT_TREES = ARTIFACTS / "trees" / "case7.json"
+TREE_FORMAT = "lcmesh-trees/1"
+
+
+@dataclass
+class Tree:
+    """A fitted tree as flat node arrays (sklearn's layout): leaves have ``left == -1``."""
+
+    left: np.ndarray
+    right: np.ndarray
+    feature: np.ndarray
+    threshold: np.ndarray
+    value: np.ndarray  # (nodes, outputs): leaf predictions (class index stored as value for classifiers)
+    feature_names: list[str]
+    output_names: list[str]
+
+    @classmethod
+    def from_sklearn(cls, model, feature_names: list[str], output_names: list[str], classes=None) -> "Tree":
+        t = model.tree_
+        if classes is None:
+            value = t.value[:, :, 0].astype(np.float64)  # regression: (nodes, outputs)
+        else:
+            value = np.asarray(classes, dtype=np.float64)[t.value[:, 0, :].argmax(axis=1)][:, None]
+        return cls(t.children_left.copy(), t.children_right.copy(), t.feature.copy(), t.threshold.copy(), value,
+                   list(feature_names), list(output_names))  # fmt: skip
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """(n, features) -> (n, outputs), walking all rows down the tree at once."""
+        node = np.zeros(x.shape[0], dtype=np.int64)
+        rows = np.arange(x.shape[0])
+        while True:
+            internal = self.left[node] >= 0
+            if not internal.any():
+                return self.value[node]
+            n = node[internal]
+            go_left = x[rows[internal], self.feature[n]] <= self.threshold[n]
+            node[internal] = np.where(go_left, self.left[n], self.right[n])
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.left.size)
+
+    @property
+    def n_leaves(self) -> int:
+        return int((self.left < 0).sum())
+
+    @property
+    def depth(self) -> int:
+        depth = np.zeros(self.n_nodes, dtype=np.int64)
+        for i in range(self.n_nodes):  # parents come before children in sklearn's layout
+            if self.left[i] >= 0:
+                depth[self.left[i]] = depth[self.right[i]] = depth[i] + 1
+        return int(depth.max())
+
+    def to_json(self) -> dict:
+        return {"left": self.left.tolist(), "right": self.right.tolist(), "feature": self.feature.tolist(),
+                "threshold": self.threshold.tolist(),  # full precision: a rounded threshold moves rows across a split
+                "value": self.value.tolist(), "feature_names": self.feature_names,
+                "output_names": self.output_names}  # fmt: skip
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Tree":
+        return cls(np.asarray(d["left"], dtype=np.int64), np.asarray(d["right"], dtype=np.int64),
+                   np.asarray(d["feature"], dtype=np.int64), np.asarray(d["threshold"], dtype=np.float64),
+                   np.asarray(d["value"], dtype=np.float64), list(d["feature_names"]), list(d["output_names"]))  # fmt: skip
+
+
+def tree_rules(tree: Tree, max_depth: int = 6, unit_of=None) -> str:
+    """Nested if/else rules (down to ``max_depth``; deeper subtrees summarized by their mean output)."""
+    lines: list[str] = []
+
+    def leaf_text(i: int) -> str:
+        vals = tree.value[i]
+        return ", ".join(f"{name} = {v:.3f}" for name, v in zip(tree.output_names, vals))
+
+    def walk(i: int, depth: int) -> None:
+        pad = "  " * depth
+        if tree.left[i] < 0:
+            lines.append(f"{pad}-> {leaf_text(i)}")
+            return
+        if depth >= max_depth:
+            lines.append(f"{pad}-> (subtree of {_count(tree, i)} nodes) ~ {leaf_text(i)}")
+            return
+        name = tree.feature_names[tree.feature[i]]
+        thr = tree.threshold[i]
+        shown = unit_of(name, thr) if unit_of else f"{thr:.3f}"
+        lines.append(f"{pad}if {name} <= {shown}:")
+        walk(tree.left[i], depth + 1)
+        lines.append(f"{pad}else:  # {name} > {shown}")
+        walk(tree.right[i], depth + 1)
+
+    walk(0, 0)
+    return "\n".join(lines)
+
+
+def _count(tree: Tree, i: int) -> int:
+    stack, n = [i], 0
+    while stack:
+        j = stack.pop()
+        n += 1
+        if tree.left[j] >= 0:
+            stack += [tree.left[j], tree.right[j]]
+    return n
+
+
+def feature_in_units(name: str, value: float) -> str:
+    """A normalized feature threshold in physical units, for the rules operators read."""
+    if "temp" in name or name == "max_blade_temp":
+        return f"{value * 5.0 + 35.0:.2f} degC"
+    if name == "wet_bulb":
+        return f"{value * 10.0 + 20.0:.2f} degC (wet bulb)"
+    if name == "approach_setpoint":
+        return f"{value * 2.0 + 10.0 / 1.8:.2f} K approach"
+    if name.startswith("branch_power"):
+        return f"{value + 1.0:.3f} x design branch load"
+    return f"{value:.3f}"
+
+
+def save_trees(path: Path, trees: dict[str, Tree], layout: FeatureLayout, manifest: dict) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc = {"format": TREE_FORMAT, "layout": layout.to_json(), "trees": {k: t.to_json() for k, t in trees.items()},
+           "manifest": manifest}  # fmt: skip
+    path.write_text(json.dumps(doc) + "\n")
+    return path
+
+
+def load_trees(path: Path) -> tuple[dict[str, Tree], FeatureLayout, dict]:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"tree file {path} not found (make one with `lcmesh distill tree`)")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path} is not JSON: {exc}") from exc
+    if not isinstance(doc, dict) or doc.get("format") != TREE_FORMAT:
+        raise ValueError(f"{path} is not an lc-mesh tree file (expected format {TREE_FORMAT!r})")
+    return {k: Tree.from_json(v) for k, v in doc["trees"].items()}, FeatureLayout(**doc["layout"]), doc.get("manifest", {})
+
+
+class TreeController:
+    """Distilled trees as a controller: ``tower`` (step choice), ``cdu`` (setpoint, dp), ``valves`` (split)."""
+
+    name = "tree"
+
+    def __init__(self, system: SystemDescription, policy: str | Path | None = None):
+        path = Path(policy) if policy is not None else DEFAULT_TREES
+        self.trees, layout, self.manifest = load_trees(path)
+        layout.check(system, f"tree file {path}")
+        self.version = str(self.manifest.get("version", "1"))
+        self.features = FeatureBuilder(system)
+        self.towers = TowerSetpoints(system)
+        self.baseline = G36Controller(system)
+        C, B, N = system.cabinets.count, system.cabinets.branches, system.towers.count
+        self._action = PlantAction(np.zeros(C), np.zeros(C), np.full((C, B), 1.0 / B), np.zeros(N))
+        self._u = np.zeros((C, 2 + B))
+
+    def reset(self) -> None:
+        self.towers.reset()
+        self.baseline.reset()
+
+    def act(self, obs: Observation) -> PlantAction:
+        action = self._action
+        if not {"cdu", "valves", "tower"} <= self.trees.keys():
+            for dst, src in zip(action.astuple(), self.baseline.act(obs).astuple()):
+                dst[...] = src
+        if "cdu" in self.trees:
+            rows = self.features.cabinet_rows(obs)
+            self._u[:, :2] = self.trees["cdu"].predict(rows)
+            self._u[:, 2:] = self.trees["valves"].predict(rows) if "valves" in self.trees else action.valve_fractions
+            decode_cabinet(self._u, action, valves_given=True)
+        if "tower" in self.trees:
+            choice = self.trees["tower"].predict(self.features.tower_rows(obs))[:, 0]
+            self.towers.apply(np.rint(choice).astype(np.int64), obs.wet_bulb_k, action)
+        return action
+
+
+__all__ = ["APPROACH_LEVELS_K", "Tree", "TreeController", "load_trees", "save_trees", "tree_rules"]
