@@ -1,0 +1,285 @@
+"""Claims in the text checked against the record: coverage and direction (``consistency.py``: ranking,
+physics, bounds).
+
+Rules (docs/explanations.md, "Evaluator rules"):
+
+- coverage: each action dimension is explained: valve j by a span after "branch j" that cites its
+  fraction or talks about its opening, or by a valve sentence listing all fractions in branch order or
+  calling the split equal (when it is); the supply setpoint, flow, dp and tower action by a sentence
+  naming the dimension that cites its value or change, or states its direction.
+- direction: "raised/lowered/held" (and "opens branch 2 further", "more flow") claims about this action,
+  outside conditions, advice and the RECOMMENDATIONS section, compared with the change against
+  ``previous_action`` (or our facts' ``*_change``); valve claims made against the other branches ("more
+  than an equal share") or the load ("above its load share") compare with those instead.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+from dataclasses import dataclass
+
+import numpy as np
+
+from lcmesh.mesh.tools.explain_eval import text as tx
+from lcmesh.mesh.tools.explain_eval.grounding import ValuePool, tolerance
+from lcmesh.mesh.tools.explain_eval.numbers import K0, PSI_TO_PA, NumberMention
+from lcmesh.mesh.tools.explain_eval.record import EvalConfig, Record
+
+Flag = tuple[str, str]
+
+
+@dataclass
+class Context:
+    """What every check reads: the record, its text parsed once, and the branch numbering."""
+
+    rec: Record
+    cfg: EvalConfig
+    sentences: list[tx.Sentence]
+    numbers: list[NumberMention]
+    branches: list[tx.BranchMention]
+    base: int
+    pool: ValuePool
+
+    def entity(self, b: tx.BranchMention) -> int:
+        return b.raw - 1 if b.ordinal else b.raw - self.base
+
+    def label(self, j: int) -> str:
+        return f"branch {j + self.base}"
+
+    def __post_init__(self) -> None:
+        self._branch_starts = [b.start for b in self.branches]
+        self._measures = [m for m in self.numbers if m.role == "measure"]
+        self._measure_starts = [m.start for m in self._measures]
+
+    def branches_in(self, start: int, end: int) -> list[tx.BranchMention]:
+        return self.branches[bisect_left(self._branch_starts, start) : bisect_left(self._branch_starts, end)]
+
+    def numbers_in(self, start: int, end: int) -> list[NumberMention]:
+        """Measurements starting in [start, end)."""
+        return self._measures[bisect_left(self._measure_starts, start) : bisect_left(self._measure_starts, end)]
+
+    def span_of(self, b: tx.BranchMention, sentence: tx.Sentence) -> tuple[int, int]:
+        """From the mention (or its list's start) to the next mention outside its list, within the sentence."""
+        inside = self.branches_in(sentence.start, sentence.end)
+        group = [x for x in inside if b.group >= 0 and x.group == b.group] or [b]
+        start = group[0].start
+        later = [x.start for x in inside if x.start > group[-1].start and x not in group]
+        return start, min(later) if later else sentence.end
+
+    def matches(self, m: NumberMention, quantity: str, value: float) -> bool:
+        for q, x, h in m.interpretations:
+            if q == quantity and abs(x - value) <= tolerance(q, x, h, self.cfg):
+                return True
+        return False
+
+
+# --- coverage -----------------------------------------------------------------------------------
+
+
+def check_coverage(ctx: Context) -> tuple[dict[str, bool], list[Flag]]:
+    rec = ctx.rec
+    dims: dict[str, bool] = {}
+    if rec.valves is not None:
+        covered = _valves_covered(ctx)
+        for j in range(rec.valves.size):
+            dims[f"valve {ctx.label(j)}"] = j in covered
+    scalar = [("supply setpoint", rec.supply_k, tx.SUPPLY_ANY, "temp_abs", "supply"),
+              ("flow", rec.flow_kg_s, tx.FLOW, "flow", "flow"), ("dp", rec.dp_pa, tx.DP, "pressure", "dp"),
+              ("tower", rec.lw_k, tx.TOWER, "temp_abs", "tower")]  # fmt: skip
+    for name, value, pattern, quantity, change_key in scalar:
+        if value is None and not (name == "tower" and rec.ct_category is not None):
+            continue
+        dims[name] = any(_scalar_covered(ctx, s, pattern, quantity, value, change_key) for s in ctx.sentences)
+    flags = []
+    for name, ok in dims.items():
+        if not ok:
+            flags.append(("missing_action_dimension", f"the {_describe(ctx, name)} is not explained"))
+    return dims, flags
+
+
+def _describe(ctx: Context, name: str) -> str:
+    rec = ctx.rec
+    if name.startswith("valve "):
+        j = int(name.rsplit(" ", 1)[1]) - ctx.base
+        return f"valve fraction of {ctx.label(j)} ({rec.valves[j]:.2f})"
+    if name == "supply setpoint":
+        return f"supply setpoint ({rec.supply_k - K0:.1f} °C)"
+    if name == "dp":
+        return f"dp setpoint ({rec.dp_pa / PSI_TO_PA:.1f} psi)"
+    if name == "flow":
+        return f"flow ({rec.flow_kg_s:.2f} kg/s)"
+    return "tower action" + (f" ({rec.lw_k - K0:.1f} °C)" if rec.lw_k is not None else f" ({rec.ct_category})")
+
+
+def _valves_covered(ctx: Context) -> set[int]:
+    valves = ctx.rec.valves
+    covered: set[int] = set()
+    last: int | None = None  # the one branch the previous sentence was about, for "its valve ..."
+    for s in ctx.sentences:
+        has_valve_word = bool(tx.VALVE.search(s.text)) or "VALVE" in s.heading or "VALVE" in s.section
+        mentions = ctx.branches_in(s.start, s.end)
+        if not mentions and last is not None and has_valve_word and tx.PRONOUN.search(s.text):
+            if any(ctx.matches(m, "fraction", valves[last]) for m in ctx.numbers_in(s.start, s.end)):
+                covered.add(last)
+        entities = {ctx.entity(b) for b in mentions}
+        last = entities.pop() if len(entities) == 1 else (last if not mentions else None)
+        for b in mentions:
+            j = ctx.entity(b)
+            if not 0 <= j < valves.size:
+                continue
+            a, z = ctx.span_of(b, s)
+            span = ctx.rec.text[a:z]
+            text = ctx.rec.text
+            before = [m for m in ctx.numbers_in(s.start, b.start) if tx.words_between(text, m.end, b.start) <= 2]
+            cites = any(ctx.matches(m, "fraction", valves[j]) for m in ctx.numbers_in(a, z) + before[-1:])
+            talks = tx.VALVE.search(span) and (tx.ANY_DIRECTION.search(span) or tx.EQUAL_SPLIT.search(span))
+            if (cites and (has_valve_word or tx.VALVE.search(span))) or talks:
+                covered.add(j)
+        if not has_valve_word:
+            continue
+        fractions = [m for m in ctx.numbers_in(s.start, s.end) if any(q == "fraction" for q, _, _ in m.interpretations)]
+        if _in_order(ctx, fractions, valves):
+            covered.update(range(valves.size))
+        equal = float(np.ptp(valves)) < 0.01
+        if equal and (tx.EQUAL_SPLIT.search(s.text) or (tx.EACH.search(s.text) and fractions
+                                                         and ctx.matches(fractions[0], "fraction", valves[0]))):
+            covered.update(range(valves.size))  # fmt: skip
+    return covered
+
+
+def _in_order(ctx: Context, mentions: list[NumberMention], valves: np.ndarray) -> bool:
+    k = 0
+    for m in mentions:
+        if k < valves.size and ctx.matches(m, "fraction", valves[k]):
+            k += 1
+    return k == valves.size
+
+
+def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -> bool:
+    if not pattern.search(s.text):
+        return False
+    change = ctx.rec.changes.get(change_key)
+    for m in ctx.numbers_in(s.start, s.end):
+        if value is not None and ctx.matches(m, quantity, value):
+            return True
+        if change is not None and ctx.matches(m, "temp_delta" if quantity == "temp_abs" else quantity, abs(change)):
+            return True
+    if change_key == "tower" and ctx.rec.ct_category is not None and ctx.rec.ct_category.lower() in s.text.lower():
+        return True
+    strict = {"supply": tx.SUPPLY_SETPOINT, "tower": tx.TOWER_SETPOINT}.get(change_key, pattern)
+    return bool(strict.search(s.text)) and bool(tx.ANY_DIRECTION.search(s.text))
+
+
+# --- direction ----------------------------------------------------------------------------------
+
+_DIM_PATTERNS = (("supply", tx.SUPPLY_SETPOINT), ("dp", tx.DP), ("tower", tx.TOWER_SETPOINT), ("flow", tx.FLOW))
+
+
+def direction_claims(
+    ctx: Context, clause: tx.Clause, include_valves: bool = True, valve_context: bool = False
+) -> list[tuple[str, str, int]]:
+    """(dimension, up|down|hold, position) claims of one clause; dimension "valve:j" for branch j. Branch
+    mentions are valves when the clause (or, with ``valve_context``, its sentence) talks about valves."""
+    text = clause.text
+    if not tx.ANY_DIRECTION.search(text):
+        return []
+    branches = ctx.branches_in(clause.start, clause.end)
+    dims: list[tuple[str, int, int]] = []  # (dimension, start, end) relative to the clause
+    for name, pattern in _DIM_PATTERNS:
+        if name == "flow" and branches:
+            continue  # "more flow to branch 2" is the valve split
+        dims += [(name, m.start(), m.end()) for m in pattern.finditer(text)]
+    single = len(branches) == 1
+    valves = valve_context or tx.VALVE.search(text) or tx.VALVE_MORE.search(text) or tx.VALVE_LESS.search(text)
+    if include_valves and valves:
+        dims += [(f"valve:{ctx.entity(b)}", b.start - clause.start, b.end - clause.start) for b in branches]
+    if not dims:
+        return []
+    best: dict[str, tuple[int, str, int]] = {}
+    for pol, side, pattern in tx.DIRECTION:
+        for w in pattern.finditer(text):
+            if pol != "hold" and tx.NEGATION.search(text[max(0, w.start() - 15) : w.start()]):
+                continue
+            if side == "both" and tx.PASSIVE_AUX.search(text[max(0, w.start() - 25) : w.start()]):
+                side = "before"  # "the setpoint was raised": the dimension comes first
+            _associate(text, w.start(), w.end(), pol, side, dims, best, single)
+    for pol, pattern in (("up", tx.VALVE_MORE), ("down", tx.VALVE_LESS)):
+        for w in pattern.finditer(text):
+            valve_dims = [d for d in dims if d[0].startswith("valve:")]
+            _associate(text, w.start(), w.end(), pol, "both", valve_dims, best, single)
+    return [(dim, pol, clause.start + pos) for dim, (_, pol, pos) in best.items()]
+
+
+def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:
+    """Give a direction word to the nearest dimension on its side, at most 6 words away; in a clause about one
+    branch, its valve takes the word at that limit ("Branch 1, the coolest ..., had its valve raised")."""
+    candidates = []
+    for name, d0, d1 in dims:
+        far = 6 if single_branch and name.startswith("valve:") else None
+        if d0 >= w1 and side in ("after", "both"):
+            dist = tx.words_between(text, w1, d0)
+        elif d1 <= w0 and side in ("before", "both"):
+            dist = tx.words_between(text, d1, w0)
+        else:
+            continue
+        candidates.append((dist if far is None else min(dist, far), name))
+    if not candidates:
+        return
+    dist, name = min(candidates)
+    if dist <= 6 and (name not in best or dist < best[name][0]):
+        best[name] = (dist, pol, w0)
+
+
+def check_direction(ctx: Context) -> tuple[int, int, list[Flag]]:
+    """(checked, consistent, flags) over the claims about this action."""
+    checked = consistent = 0
+    flags: list[Flag] = []
+    for s in ctx.sentences:
+        if "RECOMMENDATION" in s.section:
+            continue
+        valve_context = bool(tx.VALVE.search(s.text)) or "VALVE" in s.heading
+        for clause in s.clauses:
+            if clause.hypothetical:
+                continue
+            for dim, pol, _ in direction_claims(ctx, clause, valve_context=valve_context):
+                expected = _expected(ctx, dim, clause.text)
+                if expected is None or (pol == "hold" and expected[1] == "equal split"):
+                    continue
+                checked += 1
+                if pol == expected[0]:
+                    consistent += 1
+                else:
+                    what = _dim_name(ctx, dim)
+                    flags.append(("wrong_direction", f"'{clause.text.strip()}' says {pol} but the {what} went "
+                                                     f"{expected[0]} ({expected[1]})"))  # fmt: skip
+    return checked, consistent, flags
+
+
+def _dim_name(ctx: Context, dim: str) -> str:
+    return f"valve of {ctx.label(int(dim.split(':')[1]))}" if dim.startswith("valve:") else f"{dim} setpoint"
+
+
+def _expected(ctx: Context, dim: str, clause: str) -> tuple[str, str] | None:
+    rec, band = ctx.rec, ctx.cfg.hold_band
+    if dim.startswith("valve:"):
+        j = int(dim.split(":")[1])
+        if rec.valves is None or not 0 <= j < rec.valves.size:
+            return None
+        if tx.RELATIVE_TO_LOAD.search(clause) and rec.powers_w is not None and rec.powers_w.sum() > 0:
+            delta, ref = rec.valves[j] - rec.powers_w[j] / rec.powers_w.sum(), "load share"
+        elif tx.RELATIVE_TO_OTHERS.search(clause) or rec.valve_changes is None:
+            delta, ref = rec.valves[j] - 1.0 / rec.valves.size, "equal split"
+        else:
+            delta, ref = rec.valve_changes[j], "previous action"
+        return _polarity(float(delta), band["valve"]), ref
+    change = rec.changes.get(dim)
+    if change is not None:
+        return _polarity(change, band[dim]), "previous action"
+    now = {"flow": rec.flow_kg_s, "dp": rec.dp_pa}.get(dim)
+    if now is not None and dim in rec.observed:
+        return _polarity(now - rec.observed[dim], band[dim]), "observation"
+    return None
+
+
+def _polarity(delta: float, band: float) -> str:
+    return "up" if delta > band else "down" if delta < -band else "hold"

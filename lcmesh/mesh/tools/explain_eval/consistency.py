@@ -1,0 +1,245 @@
+"""Claims checked against the record's data and the plant's physics: ranking, physics, bounds.
+
+- ranking: "branch 2 runs hottest / carries the most load / has the largest valve fraction" and
+  "branch 1 is hotter than branch 3" against the observation (ties within tolerance pass).
+- physics: a cause (a setpoint, flow, dp or valve moving one way) followed by an effect that
+  contradicts the plant: a lower supply setpoint or more flow warming the blades, a higher leaving-water
+  setpoint costing fan power, less flow costing pump power, tower water below the wet bulb.
+- bounds: valve fractions outside [0, 1] or not summing to 1, setpoints outside ``EvalConfig.bounds``,
+  a leaving-water setpoint below the wet bulb, a branch that does not exist, a fraction over 1 in text.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from lcmesh.mesh.tools.explain_eval import text as tx
+from lcmesh.mesh.tools.explain_eval.claims import Context, Flag, direction_claims
+from lcmesh.mesh.tools.explain_eval.numbers import K0, PSI_TO_PA
+
+
+# --- ranking ------------------------------------------------------------------------------------
+
+
+def check_ranking(ctx: Context) -> list[Flag]:
+    rec, flags = ctx.rec, []
+    data = {"temp": rec.temps_k, "load": rec.powers_w, "valve": rec.valves}
+    for s in ctx.sentences:
+        mentions = ctx.branches_in(s.start, s.end)
+        if not mentions:
+            continue
+        for what, extreme, pattern in tx.SUPERLATIVES:
+            values = data[what]
+            for w in pattern.finditer(s.text):
+                b = _nearest(ctx, s, mentions, s.start + w.start(), s.start + w.end())
+                if values is None or b is None or not 0 <= ctx.entity(b) < values.size:
+                    continue
+                j = ctx.entity(b)
+                best = int(values.argmax() if extreme == "max" else values.argmin())
+                if abs(values[j] - values[best]) > _rank_tol(ctx, what, values):
+                    flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(j)} is not the {w.group().lower()}"
+                                                   f" ({ctx.label(best)} is)"))  # fmt: skip
+        flags += _comparatives(ctx, s, mentions, data)
+    return flags
+
+
+def _rank_tol(ctx: Context, what: str, values: np.ndarray) -> float:
+    if what == "temp":
+        return ctx.cfg.temp_tol_k
+    if what == "valve":
+        return ctx.cfg.fraction_tol
+    return ctx.cfg.rel_tol * float(np.abs(values).max())
+
+
+def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.BranchMention | None:
+    """The branch a superlative is said of: the nearest mention in its clause (12 words), else the sentence's
+    last mention before it (its subject, 25 words), else a mention right after it (3 words)."""
+    clause = next((c for c in s.clauses if c.start <= w0 < c.end), None)
+    text = ctx.rec.text
+
+    def dist(b: tx.BranchMention) -> int:
+        return tx.words_between(text, b.end, w0) if b.end <= w0 else tx.words_between(text, w1, b.start)
+
+    same = [b for b in mentions if clause is not None and clause.start <= b.start < clause.end and dist(b) <= 12]
+    if same:
+        return min(same, key=dist)
+    before = [b for b in mentions if b.end <= w0 and dist(b) <= 25]
+    if before:
+        return before[-1]
+    after = [b for b in mentions if b.start >= w1 and dist(b) <= 3]
+    return after[0] if after else None
+
+
+def _comparatives(ctx: Context, s: tx.Sentence, mentions, data) -> list[Flag]:
+    flags = []
+    text = ctx.rec.text
+    for what, op, pattern in tx.COMPARATIVES:
+        values = data[what]
+        if values is None:
+            continue
+        for w in pattern.finditer(s.text):
+            w0, w1 = s.start + w.start(), s.start + w.end()
+            than = tx.THAN.search(text, w1, s.end)
+            left = [b for b in mentions if b.end <= w0 and tx.words_between(text, b.end, w0) <= 6]
+            if than is None or not left or tx.words_between(text, w1, than.start()) > 3:
+                continue
+            right = [b for b in mentions if b.start >= than.end() and tx.words_between(text, than.end(), b.start) <= 2]
+            if not right:
+                continue
+            a, b = ctx.entity(left[-1]), ctx.entity(right[0])
+            if not (0 <= a < values.size and 0 <= b < values.size):
+                continue
+            diff = values[a] - values[b] if op == "gt" else values[b] - values[a]
+            if diff < -_rank_tol(ctx, what, values):
+                flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(a)} is not {w.group().lower()} than "
+                                               f"{ctx.label(b)}"))  # fmt: skip
+    return flags
+
+
+# --- physics ------------------------------------------------------------------------------------
+
+# cause (dimension, direction) -> expected effect direction per target
+_EXPECT = {
+    ("supply", "up"): {"temp": "up", "fan": "down", "energy": "down"},
+    ("supply", "down"): {"temp": "down", "fan": "up", "energy": "up"},
+    ("flow", "up"): {"temp": "down", "pump": "up", "energy": "up"},
+    ("flow", "down"): {"temp": "up", "pump": "down", "energy": "down"},
+    ("valve", "up"): {"temp": "down"},
+    ("valve", "down"): {"temp": "up"},
+    ("tower", "up"): {"fan": "down", "energy": "down", "temp": "up"},
+    ("tower", "down"): {"fan": "up", "energy": "up", "temp": "down"},
+}  # fmt: skip
+_SUPPLY_CAUSE = re.compile(
+    tx.SUPPLY_SETPOINT.pattern + r"|supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature|coolant[\s-]+temperature"
+    r"|\bsupply\b",
+    re.I,
+)
+_CAUSE_PATTERNS = (("supply", _SUPPLY_CAUSE),
+                   ("flow", re.compile(tx.FLOW.pattern + "|" + tx.DP.pattern, re.I)),
+                   ("tower", tx.TOWER_SETPOINT))  # fmt: skip
+_OPEN = re.compile(r"\b(?:open(?:s|ed|ing)?|widen(?:s|ed|ing)?)\b(?!\s+(?:loop|circuit))", re.I)
+_CLOSE = re.compile(r"\b(?:clos(?:e|es|ed|ing)|throttl(?:e|es|ed|ing)|narrow(?:s|ed|ing)?)\b", re.I)
+
+
+def check_physics(ctx: Context) -> list[Flag]:
+    flags = []
+    for s in ctx.sentences:
+        t = s.text
+        if tx.BELOW_WET_BULB.search(t) and not tx.NEGATION.search(t):
+            flags.append(("physics", f"'{t.strip()}': a wet tower cannot cool water below the wet bulb"))
+        effects = []  # (target, up|down, effect start, target start, target end)
+        for target, pattern in tx.TARGETS.items():
+            for m in pattern.finditer(t):
+                effect = _effect_direction(t, m.start(), m.end(), "temp" if target == "temp" else "power")
+                if effect is not None:
+                    effects.append((target, effect[0], effect[1], m.start(), m.end()))
+        causes = _causes(ctx, s) if effects else []
+        for target, pol, e0, m0, m1 in effects if causes else []:
+            if any(c[2] <= m0 < c[3] for c in causes):
+                continue  # "supply temperature" is the cause here, not the effect
+            first = min(e0, m0)
+            before = [c for c in causes if c[3] <= first]
+            if not before or tx.REASON.search(t[before[-1][3] : first]):
+                continue
+            dim, cpol = before[-1][:2]
+            want = _EXPECT.get((dim, cpol), {}).get(target)
+            if want is not None and want != pol:
+                what = target if target != "temp" else "blade temperature"
+                flags.append(("physics", f"'{t.strip()}': {_cause_text(dim, cpol)} should make the {what} go {want}, "
+                                         f"not {pol}"))  # fmt: skip
+    return flags
+
+
+def _cause_text(dim: str, pol: str) -> str:
+    word = {"up": "raising", "down": "lowering"}[pol]
+    return {"supply": f"{word} the supply setpoint", "flow": f"{'more' if pol == 'up' else 'less'} flow",
+            "valve": f"{'opening' if pol == 'up' else 'closing'} a valve",
+            "tower": f"{word} the leaving-water setpoint"}[dim]  # fmt: skip
+
+
+def _causes(ctx: Context, s: tx.Sentence) -> list[tuple[str, str, int, int]]:
+    """(dimension, up|down, start, end) in sentence coordinates, ordered by position."""
+    t = s.text
+    claims = direction_claims(ctx, tx.Clause(s.start, s.end, t, False), include_valves=False)
+    claimed = [({"dp": "flow"}.get(d, d), p, pos - s.start) for d, p, pos in claims if p != "hold"]
+    out = []
+    for dim, pattern in _CAUSE_PATTERNS:
+        for m in pattern.finditer(t):
+            before = t[max(0, m.start() - 30) : m.start()]
+            if tx.CAUSE_ADJ_UP.search(before):
+                pol = "up"
+            elif tx.CAUSE_ADJ_DOWN.search(before):
+                pol = "down"
+            else:
+                near = [p for d, p, pos in claimed if d == dim and abs(pos - m.start()) < 60]
+                pol = near[0] if near else None
+            if pol is not None:
+                out.append((dim, pol, m.start(), m.end()))
+    for m in list(_OPEN.finditer(t)) + list(_CLOSE.finditer(t)):
+        if ctx.branches_in(s.start + m.end(), s.start + m.end() + 40) or tx.VALVE.search(t[m.end() : m.end() + 30]):
+            out.append(("valve", "up" if _OPEN.fullmatch(m.group()) else "down", m.start(), m.end()))
+    return sorted(out, key=lambda c: c[2])
+
+
+def _effect_direction(t: str, a: int, b: int, kind: str) -> tuple[str, int] | None:
+    """Direction word within three words of a target (before or after it)."""
+    best = None
+    for pol, table in (("up", tx.EFFECT_UP), ("down", tx.EFFECT_DOWN)):
+        for w in table[kind].finditer(t):
+            if w.end() <= a:
+                dist = tx.words_between(t, w.end(), a)
+            elif w.start() >= b:
+                dist = tx.words_between(t, b, w.start())
+            else:
+                continue
+            if dist <= 3 and (best is None or dist < best[0]):
+                best = (dist, pol, w.start())
+    return None if best is None else (best[1], best[2])
+
+
+# --- bounds -------------------------------------------------------------------------------------
+
+
+_VALVE_BEFORE = re.compile(r"(?:valves?|fractions?|opening)\b[^.;]{0,25}$", re.I)
+
+
+def check_bounds(ctx: Context) -> list[Flag]:
+    rec, b = ctx.rec, ctx.cfg.bounds
+    flags: list[Flag] = []
+    if rec.valves is not None:
+        bad = [f"{v:.3f}" for v in rec.valves if v < -1e-9 or v > 1 + 1e-9]
+        if bad:
+            flags.append(("out_of_bounds", f"valve fractions {', '.join(bad)} lie outside [0, 1]"))
+        if abs(rec.valves.sum() - 1.0) > b.valve_sum_tol:
+            flags.append(("out_of_bounds", f"valve fractions sum to {rec.valves.sum():.3f}, not 1"))
+    for name, value, (lo, hi), unit in (
+        ("supply setpoint", None if rec.supply_k is None else rec.supply_k - K0, b.supply_setpoint_c, "°C"),
+        ("dp setpoint", None if rec.dp_pa is None else rec.dp_pa / PSI_TO_PA, b.dp_psi, "psi"),
+        ("flow", rec.flow_kg_s, b.flow_kg_s, "kg/s"),
+        ("leaving-water setpoint", None if rec.lw_k is None else rec.lw_k - K0, b.lw_setpoint_c, "°C"),
+    ):
+        if value is not None and not lo <= value <= hi and not (name == "flow" and value == lo == 0):
+            flags.append(("out_of_bounds", f"{name} {value:.2f} {unit} lies outside [{lo:g}, {hi:g}] {unit}"))
+    if rec.flow_kg_s is not None and rec.flow_kg_s <= 0:
+        flags.append(("out_of_bounds", f"flow {rec.flow_kg_s:.2f} kg/s must be > 0"))
+    if rec.lw_k is not None and rec.wet_bulb_k is not None and rec.lw_k < rec.wet_bulb_k:
+        flags.append(("out_of_bounds", f"leaving-water setpoint {rec.lw_k - K0:.1f} °C is below the "
+                                       f"{rec.wet_bulb_k - K0:.1f} °C wet bulb"))  # fmt: skip
+    n = rec.n_branches
+    for bm in ctx.branches:
+        if n and not 0 <= ctx.entity(bm) < n:
+            flags.append(("out_of_bounds", f"branch {bm.raw} does not exist ({n} branches, numbered from {ctx.base})"))
+    for s in ctx.sentences:
+        for c in s.clauses:
+            if not re.search(r"\bvalves?\b|\bfractions?\b|\bopening\b", c.text, re.I):
+                continue
+            for m in ctx.numbers_in(c.start, c.end):
+                if not _VALVE_BEFORE.search(ctx.rec.text[c.start : m.start]):
+                    continue
+                over = (m.unit == "" and m.decimals > 0 and m.value > 1.0) or (m.unit == "%" and m.value > 100)
+                if over or (m.unit in ("", "%") and m.value < 0):
+                    flags.append(("out_of_bounds", f"'{m.text}{'%' if m.unit == '%' else ''}' in '{c.text.strip()}'"
+                                                   " is not a valid valve fraction"))  # fmt: skip
+    return flags

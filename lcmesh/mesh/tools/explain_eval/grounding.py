@@ -1,0 +1,162 @@
+"""Numeric grounding: does every measurement in the text match a value of the record?
+
+A number is *grounded* when one of its interpretations (numbers.py) lies within tolerance of a pool
+value (record.py) of the same quantity. Tolerance is the larger of the stated precision (half a unit
+in the last digit: "36 °C" covers 35.5-36.5 °C) and the configured one (``temp_tol_k``,
+``fraction_tol``, ``rel_tol``). A number is *derived* (and counts as grounded) when its clause says
+it is a difference or a sum ("4.2 K above branch 1", "together 230 kW") and it equals the difference
+or sum of two pool values of one quantity. A grounded temperature, power or fraction written right
+after "branch j" must be branch j's own value (or a value that belongs to no branch): "branch 1 at
+40.6 °C" when 40.6 °C is branch 2's temperature is ungrounded.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lcmesh.mesh.tools.explain_eval.numbers import K0, NumberMention
+from lcmesh.mesh.tools.explain_eval.record import EvalConfig, PoolEntry, Record
+
+DIFF_CUE = re.compile(
+    r"\b(?:above|below|than|warmer|hotter|cooler|colder|higher|lower|more|less|difference|differ\w*|spread|spans?"
+    r"|gap|margin|apart|delta|approach|between|exceed\w*|short of|beyond|inside|outside|headroom)\b|Δ",
+    re.IGNORECASE,
+)
+SUM_CUE = re.compile(
+    r"\b(?:total|together|combined|sum|plus|altogether|in all|overall|add\w*|jointly)\b", re.IGNORECASE
+)
+_BRANCH_QUANTITIES = ("temp_abs", "power", "fraction")
+
+
+@dataclass
+class GroundingResult:
+    checked: int = 0
+    grounded: int = 0
+    derived: int = 0
+    skipped: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def score(self) -> float:
+        return self.grounded / self.checked if self.checked else 1.0
+
+
+class ValuePool:
+    """Pool values per quantity as arrays, with lazily built pairwise differences and sums."""
+
+    def __init__(self, entries: list[PoolEntry]):
+        self.entries: dict[str, list[PoolEntry]] = {}
+        for e in entries:
+            self.entries.setdefault(e.quantity, []).append(e)
+        self.values = {q: np.array([e.value for e in es]) for q, es in self.entries.items()}
+        self._pairs: dict[tuple[str, str], np.ndarray] = {}
+
+    def direct(self, quantity: str, value: float, tol: float) -> list[PoolEntry]:
+        arr = self.values.get(quantity)
+        if arr is None:
+            return []
+        hits = np.flatnonzero(np.abs(arr - value) <= tol)
+        return [self.entries[quantity][i] for i in hits]
+
+    def derived(self, quantity: str, value: float, tol: float, how: str) -> bool:
+        source = {"temp_delta": "temp_abs"}.get(quantity, quantity) if how == "diff" else quantity
+        key = (source, how)
+        if key not in self._pairs:
+            v = self.values.get(source, np.zeros(0))
+            i, j = np.triu_indices(v.size, k=1)
+            self._pairs[key] = np.abs(v[i] - v[j]) if how == "diff" else v[i] + v[j]
+        pairs = self._pairs[key]
+        return bool(pairs.size and (np.abs(pairs - value) <= tol).any())
+
+
+def tolerance(quantity: str, value: float, half_ulp: float, cfg: EvalConfig) -> float:
+    """Accepted distance for a stated value: its precision or the configured tolerance, the larger."""
+    if quantity in ("temp_abs", "temp_delta"):
+        base = cfg.temp_tol_k
+    elif quantity == "fraction":
+        base = cfg.fraction_tol
+    elif quantity == "percent":
+        base = cfg.fraction_tol * 100.0
+    else:
+        base = cfg.rel_tol * abs(value)
+    return max(base, half_ulp * 1.0001) + 1e-9
+
+
+def check_grounding(
+    rec: Record,
+    mentions: list[NumberMention],
+    pool: ValuePool,
+    clause_at,
+    branch_at,
+    cfg: EvalConfig,
+) -> GroundingResult:
+    """Score the measurements; ``clause_at(pos)`` gives the clause text, ``branch_at(pos)`` the branch
+    (0-based) whose span holds ``pos`` or None."""
+    res = GroundingResult()
+    for m in mentions:
+        if m.role != "measure":
+            res.skipped += 1
+            continue
+        res.checked += 1
+        hits: list[PoolEntry] = []
+        for q, x, h in m.interpretations:
+            hits += pool.direct(q, x, tolerance(q, x, h, cfg))
+        if hits:
+            wrong = _misattributed(hits, branch_at(m.start))
+            if wrong is None:
+                res.grounded += 1
+            else:
+                res.problems.append(
+                    f"{_quote(rec.text, m)} is attributed to branch {wrong[0]} but is branch {wrong[1]}'s value"
+                )
+            continue
+        clause = clause_at(m.start)
+        if _derived(m, pool, clause, cfg):
+            res.grounded += 1
+            res.derived += 1
+            continue
+        res.problems.append(f"{_quote(rec.text, m)} matches no observation, action or fact value{_hint(m, pool, cfg)}")
+    return res
+
+
+def _misattributed(hits: list[PoolEntry], branch: int | None) -> tuple[int, int] | None:
+    """(claimed, actual) 0-based branches when the number only matches other branches' values."""
+    if branch is None:
+        return None
+    relevant = [e for e in hits if e.quantity in _BRANCH_QUANTITIES]
+    if not relevant or len(relevant) < len(hits):
+        return None
+    owners = {e.entity if e.entity is not None else e.alias for e in relevant}
+    if branch in owners or None in owners:
+        return None
+    return branch, min(owners)
+
+
+def _derived(m: NumberMention, pool: ValuePool, clause: str, cfg: EvalConfig) -> bool:
+    diff, total = bool(DIFF_CUE.search(clause)), bool(SUM_CUE.search(clause))
+    for q, x, h in m.interpretations:
+        if q == "temp_abs" or q == "unitless":
+            continue
+        tol = tolerance(q, x, h, cfg)
+        if diff and pool.derived(q, x, tol, "diff"):
+            return True
+        if total and q != "temp_delta" and pool.derived(q, x, tol, "sum"):
+            return True
+    return False
+
+
+def _hint(m: NumberMention, pool: ValuePool, cfg: EvalConfig) -> str:
+    """Name a K/deg C mix-up when swapping the unit would have matched."""
+    if m.unit == "K" and pool.direct("temp_abs", m.value + K0, tolerance("temp_abs", 0, m.half_ulp, cfg)):
+        return f" (the data has {m.text} °C: K and °C confused)"
+    if m.unit == "degC" and pool.direct("temp_abs", m.value, tolerance("temp_abs", 0, m.half_ulp, cfg)):
+        return f" (the data has {m.text} K: °C and K confused)"
+    return ""
+
+
+def _quote(text: str, m: NumberMention) -> str:
+    end = m.unit_end if m.unit_end > 0 else m.end
+    return f"'{text[m.start:end]}'"

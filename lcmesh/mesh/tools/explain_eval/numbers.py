@@ -1,0 +1,217 @@
+"""Numbers in explanation text: value, unit, and whether the number is a measurement at all.
+
+Each number found gets a *role*: ``measure`` (checked against the data), ``index`` ("branch 2",
+"B1", "3rd", "cabinet 3"), ``count`` ("3 branches", "2 of 3 branches"), ``time`` (durations,
+clock times, dates), ``year`` (1900-2100 with no unit) or ``tolerance`` ("±0.5 K"); only
+measurements are scored. A unit-less number in a range takes the unit of its partner
+("20-40 °C", "between 20 and 40 °C").
+
+Measurements are turned into *interpretations*: (quantity, canonical value, tolerance) pairs in SI
+(K, W, kg/s, Pa, fraction); a temperature in deg C or deg F is read both as an absolute temperature
+and as a difference, a percentage both as a fraction and as a percent figure, a bare number as any
+of the data's display units (deg C, kW, psi, fractions ...), so "0.42" and "42 %" both match a
+valve fraction of 0.42 and "36.4 °C" matches 309.55 K.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+K0 = 273.15
+PSI_TO_PA = 6894.757
+
+_NUM = re.compile(
+    r"(?P<sign>[-−–+])?(?P<num>\d{1,3}(?:,\d{3})+(?:\.\d+)?(?![\d,])|\d+(?:\.\d+)?|\.\d+)(?P<exp>[eE][-+]?\d+)?"
+)
+_DATE = re.compile(r"\b\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2})?Z?)?\b")
+_CLOCK = re.compile(r"\b\d{1,2}:\d{2}(?::\d{2})?\b")
+_SPACE = r"[\s\u00a0\u202f]*"
+
+
+def _unit(pattern: str) -> re.Pattern:
+    """A unit right after a number; ``~`` in ``pattern`` stands for optional (also non-breaking) space."""
+    return re.compile(_SPACE + "(?:" + pattern.replace("~", _SPACE) + ")")
+
+
+# (regex, normalized unit), tried in order right after the number
+_UNITS: list[tuple[re.Pattern, str]] = [
+    (_unit(r"[°º]~C(?![a-zA-Z])|℃"), "degC"),
+    (_unit(r"deg(?:rees?)?\.?~(?:C\b|Celsius\b)|degC\b|Celsius\b|C\b(?![-'’/])"), "degC"),
+    (_unit(r"[°º]~F\b|℉|deg(?:rees?)?\.?~(?:F\b|Fahrenheit\b)|degF\b"), "degF"),
+    (_unit(r"K\b(?![-'’])|[Kk]elvins?\b"), "K"),
+    (_unit(r"(?:kWh|MWh)\b"), "energy"),
+    (_unit(r"MW\b|[Mm]egawatts?\b"), "MW"),
+    (_unit(r"kW\b|[Kk]ilowatts?\b"), "kW"),
+    (_unit(r"W\b|[Ww]atts?\b"), "W"),
+    (_unit(r"kg~/~s\b|kg~s(?:\^?-1|⁻¹)|kg per s(?:ec(?:ond)?)?\b"), "kg/s"),
+    (_unit(r"[Ll]~/~s\b|lit(?:re|er)s? per second\b"), "L/s"),
+    (_unit(r"psid?\b|PSI\b"), "psi"),
+    (_unit(r"kPa\b"), "kPa"),
+    (_unit(r"MPa\b"), "MPa"),
+    (_unit(r"Pa\b"), "Pa"),
+    (_unit(r"bar\b"), "bar"),
+    (_unit(r"percentage points?\b|pp\b"), "pp"),
+    (_unit(r"%|percent\b|per~cent\b"), "%"),
+    (_unit(r"J~/~(?:\(~kg~[·*. ]?~K~\)|kg~/?~K\b)"), "J/(kg K)"),
+    (_unit(r"[kMG]?J\b"), "energy"),
+    (re.compile(r"(?:x\b|" + _SPACE + r"(?:times\b|-fold\b))"), "x"),
+    (_unit(r"(?:ms|s|secs?|seconds?|min|mins|minutes?|h|hrs?|hours?|days?|weeks?)\b"), "time"),
+]
+
+
+_INDEX_WORDS = {
+    "branch", "branches", "cabinet", "cabinets", "cdu", "cdus", "tower", "towers", "cell", "cells", "group",
+    "groups", "valve", "valves", "rack", "racks", "node", "nodes", "head", "heads", "rank", "category", "level",
+    "step", "index", "number", "no", "pump", "pumps", "loop", "zone", "row", "option", "priority", "id", "phase",
+    "stage", "agent", "bg", "bgs", "ct", "cts", "b", "c", "t", "item", "decision", "line", "section", "table",
+    "figure", "fig", "appendix", "equation", "eq", "algorithm", "case", "scenario", "example", "version",
+}  # fmt: skip
+_COUNT_NOUNS = re.compile(
+    r"^[\s\u00a0]*(?:of[\s\u00a0]+\d+[\s\u00a0]+)?(?:blade[- ]groups?|branch(?:es)?|cabinets?|towers?|cells?|groups?"
+    r"|valves?|pumps?|cdus?|agents?|steps?|racks?|nodes?|decimals?|digits?|fans?|heads?|loops?|levels?|sections?"
+    r"|dimensions?|actions?|outputs?|categories)\b",
+    re.IGNORECASE,
+)
+_IDENT_BEFORE = re.compile(r"[A-Za-z_]$|[A-Za-z]-$|\d\.$")  # B1, Llama-3, 1.2.3
+_HASH_BEFORE = re.compile(r"(?:#|\bno\.)[\s\u00a0]*$", re.IGNORECASE)
+_PLUSMINUS_BEFORE = re.compile(r"(?:±|\+/-|\+-)[\s\u00a0]*$")
+_WORD_BEFORE = re.compile(r"([A-Za-z]+)[\s\u00a0]*\(?$")
+_RANGE_DASH_BEFORE = re.compile(r"\d[\s\u00a0]*$|[A-Za-z]$")
+_ORDINAL = re.compile(r"^(?:st|nd|rd|th)\b")
+_CHAIN = re.compile(r"^[\s\u00a0]*(?:,|and|or|&|/|,[\s\u00a0]*and|to|through|-|–)[\s\u00a0]*$")
+_RANGE = re.compile(r"^[\s\u00a0]*(?:-|–|—|to|and|/)[\s\u00a0]*$")
+
+
+@dataclass
+class NumberMention:
+    """One number in the text."""
+
+    start: int
+    end: int
+    text: str
+    value: float  # as stated, signed
+    unit: str  # normalized unit ("" when none)
+    decimals: int
+    role: str  # measure | index | count | time | year | tolerance
+    unit_end: int = -1
+    interpretations: list[tuple[str, float, float]] = field(default_factory=list)
+
+    @property
+    def half_ulp(self) -> float:
+        """Half a unit in the last stated digit, in the stated unit."""
+        return 0.5 * 10.0 ** (-self.decimals)
+
+
+def extract_numbers(text: str) -> list[NumberMention]:
+    """Every number in ``text`` with its unit and role; measurements also get interpretations."""
+    masked = _mask(text)
+    mentions: list[NumberMention] = []
+    for m in _NUM.finditer(masked):
+        num = m.group("num")
+        start, end = m.start("num"), m.end()
+        sign = m.group("sign")
+        negative = False
+        if sign and sign in "-−–":
+            before = masked[: m.start()]
+            # a dash right after a number (with or without spaces) is a range, not a sign
+            if not _RANGE_DASH_BEFORE.search(before):
+                negative, start = True, m.start()
+        raw = num.replace(",", "")
+        try:
+            value = float(raw + (m.group("exp") or ""))
+        except ValueError:
+            continue
+        value = -value if negative else value
+        decimals = len(raw.split(".")[1]) if "." in raw else 0
+        mention = NumberMention(start, end, text[start:end], value, "", decimals, "measure")
+        _classify(mention, text, masked, mentions[-1] if mentions else None)
+        mentions.append(mention)
+    _inherit_range_units(mentions, text)
+    for mention in mentions:
+        if mention.role == "measure":
+            mention.interpretations = interpretations(mention)
+    return mentions
+
+
+def _mask(text: str) -> str:
+    """Replace dates and clock times by letters so they are not read as numbers."""
+    out = _DATE.sub(lambda m: "D" * len(m.group()), text)
+    return _CLOCK.sub(lambda m: "T" * len(m.group()), out)
+
+
+def _classify(m: NumberMention, text: str, masked: str, previous: NumberMention | None) -> None:
+    before = masked[max(0, m.start - 30) : m.start]
+    after = masked[m.end : m.end + 60]
+    if _IDENT_BEFORE.search(before):
+        m.role = "index"  # B1, CDU3, Llama-3.1, version 1.2.3
+        return
+    if _HASH_BEFORE.search(before) or _ORDINAL.match(after):
+        m.role = "index"
+        return
+    for pattern, unit in _UNITS:
+        u = pattern.match(text, m.end)
+        if u:
+            m.unit, m.unit_end = unit, u.end()
+            break
+    if _PLUSMINUS_BEFORE.search(before):
+        m.role = "tolerance"
+    elif m.unit == "time":
+        m.role = "time"
+    elif m.unit or m.decimals > 0:
+        return
+    elif (word := _WORD_BEFORE.search(before)) and word.group(1).lower() in _INDEX_WORDS:
+        m.role = "index"
+    elif previous is not None and previous.role == "index" and _CHAIN.match(masked[previous.end : m.start]):
+        m.role = "index"  # "branches 1, 2 and 3"
+    elif _COUNT_NOUNS.match(after):
+        m.role = "count"
+    elif 1900 <= m.value <= 2100:
+        m.role = "year"
+
+
+def _inherit_range_units(mentions: list[NumberMention], text: str) -> None:
+    for a, b in zip(mentions, mentions[1:]):
+        both_measures = a.role == b.role == "measure"
+        if both_measures and not a.unit and b.unit and _RANGE.match(text[a.end : b.start]):
+            a.unit = b.unit
+
+
+_SCALE = {"W": 1.0, "kW": 1e3, "MW": 1e6, "Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "psi": PSI_TO_PA, "bar": 1e5}
+_QUANTITY = {"W": "power", "kW": "power", "MW": "power", "Pa": "pressure", "kPa": "pressure", "MPa": "pressure",
+             "psi": "pressure", "bar": "pressure"}  # fmt: skip
+
+
+def interpretations(m: NumberMention) -> list[tuple[str, float, float]]:
+    """(quantity, canonical value, rounding tolerance) readings of a measurement."""
+    v, h, u = m.value, m.half_ulp, m.unit
+    if u == "degC":
+        return [("temp_abs", v + K0, h), ("temp_delta", abs(v), h)]
+    if u == "degF":
+        return [("temp_abs", (v - 32.0) / 1.8 + K0, h / 1.8), ("temp_delta", abs(v) / 1.8, h / 1.8)]
+    if u == "K":
+        return [("temp_abs", v, h), ("temp_delta", abs(v), h)]
+    if u in _SCALE:
+        return [(_QUANTITY[u], abs(v) * _SCALE[u], h * _SCALE[u])]
+    if u == "kg/s":
+        return [("flow", abs(v), h)]
+    if u == "L/s":
+        return [("flow", abs(v) * 0.997, h)]
+    if u == "%":
+        return [("fraction", abs(v) / 100.0, h / 100.0), ("percent", abs(v), h)]
+    if u == "pp":
+        return [("fraction", abs(v) / 100.0, h / 100.0)]
+    if u == "J/(kg K)":
+        return [("specific_heat", abs(v), h)]
+    if u == "x":
+        return [("unitless", abs(v), h)]
+    if u == "energy":
+        return [("energy", abs(v), h)]
+    # a bare number: any of the data's display units
+    a = abs(v)
+    out = [("unitless", a, h), ("fraction", a, h), ("percent", a, h), ("temp_abs", v + K0, h), ("temp_delta", a, h),
+           ("power", a * 1e3, h * 1e3), ("power", a, h), ("flow", a, h), ("pressure", a * PSI_TO_PA, h * PSI_TO_PA),
+           ("pressure", a * 1e3, h * 1e3), ("temp_abs", v, h)]  # fmt: skip
+    if 1 < a <= 100:  # "57" for 57 %
+        out.append(("fraction", a / 100.0, h / 100.0))
+    return out

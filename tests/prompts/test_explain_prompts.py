@@ -1,0 +1,60 @@
+"""The packaged explanation prompts render with real facts from the twin."""
+
+from __future__ import annotations
+
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from lcmesh.mesh.tools.explain import PROMPT_NAMES, explanation_messages, load_prompt
+from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS
+from lcmesh.mesh.tools.facts import cabinet_decision_facts
+from lcmesh.twin.controllers import Observation, make_controller
+from lcmesh.twin.plant import Plant
+from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+
+
+@pytest.fixture(scope="module")
+def facts(lcopt5):
+    """Facts of cabinet 3's decision half an hour into the Frontier day (G36)."""
+    trace = load_trace(FRONTIER_DAY, lcopt5, wet_bulb_offset_k=15.0)
+    controller = make_controller("g36", lcopt5)
+    power = np.zeros(lcopt5.n_blade_groups)
+    with Plant(lcopt5) as plant:
+        out, previous = plant.out, None
+        for k in range(120):
+            wet_bulb = float(trace.wet_bulb_k[k])
+            action = controller.act(Observation(out, wet_bulb, trace.blade_power_w(k, out=power), k * 15.0))
+            previous = action.copy()
+            out = plant.step(power, wet_bulb, action)
+        action = controller.act(Observation(out, wet_bulb, power, 120 * 15.0))
+        return cabinet_decision_facts(lcopt5, out, action, previous, wet_bulb, 2)
+
+
+def test_prompts_ship_as_package_data():
+    shipped = {p.name for p in resources.files("lcmesh.prompts").iterdir()}
+    assert {f"{name}.md" for name in PROMPT_NAMES} <= shipped
+
+
+@pytest.mark.parametrize("name", PROMPT_NAMES)
+def test_prompt_renders_with_real_facts(facts, name):
+    messages = load_prompt(name).render(facts)
+    assert [m["role"] for m in messages] == ["system", "user"]
+    system, user = messages[0]["content"], messages[1]["content"]
+    assert "$" not in system + user  # every placeholder filled
+    assert "Cite only numbers that appear in the facts" in system
+    for heading in LEVEL_SECTIONS[name.removeprefix("explain_")]:
+        assert f"## {heading}" in user
+    for fact in facts:  # the facts block carries every fact at its display precision
+        assert f"- {fact.name} = {fact.display} (" in user
+    for b in (1, 2, 3):
+        assert f"- branch {b} valve fraction: " in user
+    assert "Explain the decision for cabinet 3." in user
+    assert "CDU supply temperature setpoint" in user and "leaving-water setpoint" in user
+
+
+def test_level_helper_and_unknown_names(facts):
+    assert explanation_messages(facts, "detailed") == load_prompt("explain_detailed").render(facts)
+    with pytest.raises(ValueError, match="did you mean 'explain_short'"):
+        load_prompt("explain_shrt")
