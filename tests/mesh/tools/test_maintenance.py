@@ -1,0 +1,222 @@
+"""The fault detector on the real twin: each injected fault is flagged where it is, a healthy plant stays quiet."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from lcmesh.bench.maintenance import Injection, SensorNoise, render_maintenance, run_day, summarize
+from lcmesh.mesh.tools.maintenance import FAULT_KINDS, DetectorConfig, FaultDetector, Finding
+from lcmesh.twin.controllers import Observation, make_controller
+from lcmesh.twin.plant import Plant
+from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+
+STEP_S = 15.0
+
+
+def _run_trace(plant, spec, hours, *, inject_at_h=None, faults=None, offset_k=0.0, noise=1.0, seed=0):
+    """G36 on `hours` of a trace with optional faults at `inject_at_h`; returns (detector, raised after injection)."""
+    s = plant.system
+    trace = load_trace(spec, s, wet_bulb_offset_k=offset_k, hours=hours)
+    ctrl = make_controller("g36", s)
+    det = FaultDetector(s)
+    rng, noisy = np.random.default_rng(seed), SensorNoise().scaled(noise)
+    power = np.zeros(s.n_blade_groups)
+    plant.spin_up(trace.blade_power_w(0, out=power), float(trace.wet_bulb_k[0]), plant.default_action(), hours=1.0)
+    out = plant.reset()
+    k0 = None if inject_at_h is None else int(inject_at_h * 3600 / STEP_S)
+    raised = []
+    for k in range(trace.n_steps):
+        if k == k0:
+            plant.set_faults(**faults)
+        wb = float(trace.wet_bulb_k[k])
+        action = ctrl.act(Observation(out, wb, trace.blade_power_w(k, out=power), k * STEP_S))
+        out = plant.step(power, wb, action)
+        det.update((k + 1) * STEP_S, noisy.apply(out, rng) if noise else out, wb, action)
+        raised += [(k - (k0 or 0), f) for f in det.last_raised if f.kind in FAULT_KINDS]
+    return det, raised
+
+
+def _first(raised, kind):
+    hits = [(k, f) for k, f in raised if f.kind == kind]
+    assert hits, f"no {kind} finding; raised: {[(k, f.kind, f.location) for k, f in raised]}"
+    return hits[0]
+
+
+def test_pump_degradation_is_flagged_at_its_cabinet_within_minutes(plant):
+    det, raised = _run_trace(plant, FRONTIER_DAY, 1.5, inject_at_h=1.0, offset_k=15.0,
+                             faults=dict(pump_degradation=[0, 0, 0.2, 0, 0]))  # fmt: skip
+    k, f = _first(raised, "pump_degradation")
+    assert f.location == "cabinet_2" and 0 <= k <= 8  # <= 2 simulated minutes
+    assert f.evidence["head_loss"] == pytest.approx(0.2, abs=0.04)
+    assert "20%" in f.message or "19%" in f.message or "21%" in f.message
+    assert {g.kind for _, g in raised} == {"pump_degradation"}
+    assert f.severity == "warning" and "strainer" in f.prescription
+
+
+def test_sensor_bias_is_flagged_with_its_size_and_sign(plant):
+    bias = dict(sensor_bias_k=[0, 0, 0, -0.8, 0])
+    det, raised = _run_trace(plant, "synthetic:1000", 1.5, inject_at_h=1.0, faults=bias)
+    k, f = _first(raised, "sensor_bias")
+    assert f.location == "cabinet_3" and 0 <= k <= 20  # <= 5 simulated minutes
+    assert f.evidence["bias_estimate_k"] == pytest.approx(-0.8, abs=0.25)
+    assert "above its setpoint" in f.prescription  # reads low -> the real supply runs warm
+    assert {g.kind for _, g in raised} == {"sensor_bias"}
+
+
+def test_cell_out_is_flagged_at_the_right_cell(plant):
+    det, raised = _run_trace(plant, FRONTIER_DAY, 1.5, inject_at_h=1.0, offset_k=15.0,
+                             faults=dict(cell_out=[[0, 0], [1, 0]]))  # fmt: skip
+    k, f = _first(raised, "cell_out")
+    assert f.location == "tower_1/cell_0" and 0 <= k <= 40  # <= 10 simulated minutes
+    assert f.evidence["fan_power_w"] < 1e3
+    assert {g.location for _, g in raised} == {"tower_1/cell_0"}
+
+
+def test_stuck_valve_is_flagged_when_the_load_moves(plant):
+    """Valve modulating at a moderate load; stuck; then the load doubles and the supply runs warm."""
+    s = plant.system
+    det, rng, noise = FaultDetector(s), np.random.default_rng(4), SensorNoise()
+    action = plant.default_action()
+    action.lw_setpoint_k[:] = 294.0
+    power = np.full(s.n_blade_groups, 60e3)
+    raised, k_stuck, k_load = [], 240, 260
+    for k in range(400):
+        if k == k_stuck:
+            plant.set_faults(valve_stuck=[0, 1, 0, 0, 0])
+        if k == k_load:
+            power[3:6] *= 2.0  # cabinet 1's branches
+        out = plant.step(power, 290.0, action)
+        det.update((k + 1) * STEP_S, noise.apply(out, rng), 290.0, action)
+        raised += [(k, f) for f in det.last_raised if f.kind in FAULT_KINDS]
+    k, f = _first(raised, "valve_stuck")
+    assert f.location == "cabinet_1" and k_load <= k <= k_load + 40
+    assert [g.kind for _, g in raised] == ["valve_stuck"]
+    assert f.evidence["supply_error_k"] > 0.45  # it had to be outside the deadband to be seen
+
+
+@pytest.mark.parametrize(
+    "spec,offset_k,noise", [(FRONTIER_DAY, 15.0, 1.0), ("synthetic:1001", 0.0, 1.0), (FRONTIER_DAY, 15.0, 3.0)]
+)
+def test_a_healthy_plant_raises_no_fault_findings(plant, spec, offset_k, noise):
+    """Hours of G36 operation with sensor noise. At 3x noise fixed thresholds raise a sensor_bias false alarm
+    on this window; the detector's thresholds scale with the residual noise it measures."""
+    det, raised = _run_trace(plant, spec, 4.0, offset_k=offset_k, noise=noise, seed=7)
+    assert raised == []
+    assert det.ignored_updates == 0
+
+
+def test_a_slowly_degrading_pump_gets_a_failure_prediction(plant):
+    s = plant.system
+    det = FaultDetector(s)
+    action = plant.default_action()
+    power = np.full(s.n_blade_groups, 80e3)
+    ramp_per_step = 0.35 / 720  # 0 -> 35 % head loss over 3 h
+    finding = None
+    for k in range(720):
+        plant.set_faults(pump_degradation=[0, 0, 0, 0, ramp_per_step * k])
+        out = plant.step(power, 290.0, action)
+        findings = det.update((k + 1) * STEP_S, out, 290.0, action)
+        finding = next((f for f in findings if f.kind == "pump_degradation"), finding)
+    assert finding is not None and finding.location == "cabinet_4"
+    limit = finding.evidence["head_loss_limit"]  # ~42 % at the 27.5 psi dp setpoint
+    true_eta_s = (limit - 0.35) / ramp_per_step * STEP_S
+    assert finding.predicted_failure_s == pytest.approx(true_eta_s, rel=0.5)
+    assert "reaches the" in finding.message
+
+
+def test_overtemperature_and_trend(plant):
+    s = plant.system
+    det = FaultDetector(s)
+    action = plant.default_action()
+    action.supply_temp_setpoint_k[:] = 305.15
+    power = np.full(s.n_blade_groups, 60e3)
+    kinds_seen = {}
+    for k in range(360):
+        power[6:9] = 60e3 + 400.0 * k  # cabinet 2 ramps to ~200 kW per branch
+        out = plant.step(power, 290.0, action)
+        for f in det.update((k + 1) * STEP_S, out, 290.0, action):
+            kinds_seen.setdefault(f.kind, (k, f))
+    k_trend, trend = kinds_seen["trend"]
+    k_hot, hot = kinds_seen["overtemperature"]
+    assert trend.location == hot.location == "cabinet_2"
+    assert k_trend < k_hot and trend.predicted_failure_s > 0  # the trend warns before the limit is crossed
+    assert hot.evidence["hottest_branch_temp_k"] > 313.15 and "°C" in hot.message
+
+
+def test_bad_input_is_named_and_nan_does_not_crash(plant):
+    det = FaultDetector(plant.system)
+    out = {k: v.copy() for k, v in plant.out.items()}
+    with pytest.raises(ValueError, match="lacks 'pump_speed'"):
+        det.update(15.0, {k: v for k, v in out.items() if k != "pump_speed"}, 290.0)
+    with pytest.raises(ValueError, match=r"`out\['fan_speed'\]` must have shape \(2,\)"):
+        det.update(15.0, {**out, "fan_speed": np.zeros(3)}, 290.0)
+    with pytest.raises(ValueError, match="time_s"):
+        det.update(float("nan"), out, 290.0)
+    action = plant.default_action()
+    for k in range(40):
+        out = {key: v.copy() for key, v in plant.step(np.full(15, 50e3), 290.0, action).items()}
+        if k % 3 == 0:
+            for name in ("secondary_flow_kg_s", "supply_temp_measured_k", "primary_valve", "cell_heat_w"):
+                out[name][...] = np.nan
+        assert [f for f in det.update((k + 1) * STEP_S, out, 290.0, action) if f.kind in FAULT_KINDS] == []
+    det.update(40 * STEP_S, out, 290.0, action)  # a repeated timestamp is ignored, not an error
+    assert det.ignored_updates == 1
+    det.update(STEP_S, out, 290.0, action)  # back to the start: a restarted plant, not a late message
+    assert det.restarts == 1 and det.ignored_updates == 1 and det._last_time_s == STEP_S
+
+
+def test_findings_serialize_and_config_validates(plant):
+    plant.set_faults(pump_degradation=[0.5, 0, 0, 0, 0])
+    det = FaultDetector(plant.system)
+    for k in range(10):
+        findings = det.update((k + 1) * STEP_S, plant.step(np.full(15, 80e3), 290.0, plant.default_action()), 290.0)
+    data = json.loads(findings[0].model_dump_json())
+    assert data["kind"] == "pump_degradation" and data["severity"] == "critical"  # 50 % is past the ~42 % limit
+    assert data["predicted_failure_s"] == 0.0
+    assert Finding.model_validate(data) == findings[0]
+    with pytest.raises(ValueError, match="persistence_steps"):
+        DetectorConfig(persistence_steps=0)
+
+
+def test_benchmark_harness_counts_detection_and_manifestation(lcopt5):
+    trace = load_trace("synthetic:1002", lcopt5, hours=2.0)
+    pump = Injection("pump_degradation", 1, 0.3, 300)
+    with Plant(lcopt5) as plant, Plant(lcopt5, instance_name="healthy") as healthy:
+        initial = plant.save_state()
+        runs = [
+            run_day(plant, healthy, trace, pump, SensorNoise(), seed=1, start=initial),
+            run_day(plant, healthy, trace, None, SensorNoise(), seed=2, start=initial),
+        ]
+        again = run_day(plant, healthy, trace, pump, SensorNoise(), seed=1, start=initial)
+    assert again == runs[0]  # each run starts from the same state: order does not matter
+    assert runs[0]["manifest_step"] == 300 and 300 <= runs[0]["detected_step"] <= 308
+    assert runs[0]["steps_run"] < trace.n_steps  # stops once found and shown
+    summary = summarize(runs, lcopt5.step_s)
+    assert summary["per_kind"]["pump_degradation"]["detection_rate"] == 1.0
+    assert summary["false_alarms"]["fault_free_days"] == pytest.approx((300 + trace.n_steps) * 15 / 86400)
+    result = {**summary, "machine": {"cpu": "x", "logical_cpus": 2, "python": "3", "commit": "c", "date": "d"},
+              "system": "lcopt-5", "controller": "g36", "days": ["synthetic:1002"], "injections_per_day_and_kind": 1,
+              "simulated_days": 0.2, "wall_s": 1.0, "targets": {"detection_rate": 0.9, "median_delay_min": 10,
+                                                                 "false_alarms_per_day": 1}}  # fmt: skip
+    table = render_maintenance(result)
+    assert "| pump_degradation | 1/1 | 100% |" in table and "0.00 per day" in table
+
+
+@pytest.mark.slow
+def test_bench_maintenance_cli_quick(tmp_path):
+    """The whole benchmark command in its smoke size: JSON keys and the BENCHMARKS.md section."""
+    from typer.testing import CliRunner
+
+    from lcmesh.cli import app
+
+    out, md = tmp_path / "m.json", tmp_path / "BENCHMARKS.md"
+    result = CliRunner().invoke(app, ["bench", "maintenance", "--quick", "--json", str(out), "--markdown", str(md)])
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert set(data["per_kind"]) == set(FAULT_KINDS)
+    assert data["false_alarms"]["per_day"] <= 1.0
+    assert data["per_kind"]["pump_degradation"]["detection_rate"] == 1.0
+    assert "<!-- bench:maintenance:start -->" in md.read_text()

@@ -1,0 +1,122 @@
+"""The tool registry: every tool answers, bad requests get errors that name the field, whatif needs the twin."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from lcmesh.cli import app
+from lcmesh.mesh.tools.registry import TOOLS, ToolContext, catalog, invoke
+
+
+@pytest.fixture
+def ctx(lcopt5):
+    return ToolContext(lcopt5)
+
+
+@pytest.mark.parametrize(
+    "name,payload,key,expected",
+    [
+        ("heat_balance", {"mass_flow_kg_s": 10, "delta_t_k": 5}, "heat_w", 209_300.0),  # 10 x 4186 x 5
+        ("hx_effectiveness", {"ntu": 1.0, "capacity_ratio": 1.0}, "effectiveness", 0.5),  # NTU / (1 + NTU)
+        ("hx_effectiveness", {"hot_in_k": 333.15, "hot_out_k": 313.15, "cold_in_k": 293.15, "cold_out_k": 303.15},
+         "effectiveness", 0.5),  # 20 K of a 40 K span
+        ("approach", {"leaving_water_k": 300.0, "wet_bulb_k": 295.0, "entering_water_k": 305.0}, "range_k", 5.0),
+        ("affinity", {"machine": "pump", "speed_from": 1.0, "speed_to": 0.5, "flow": 10, "power_w": 8000},
+         "power_w", 1000.0),  # 8 kW x 0.5^3
+        ("tower_power", {"heat_w": 898e3, "approach_k": 3.0, "wet_bulb_k": 298.15}, "fan_speed", 0.784984),
+        ("confidence_interval", {"samples": [1, 2, 3, 4, 5]}, "high", 4.963243),  # 3 + 2.776445 x 1.581139 / sqrt 5
+    ],
+)  # fmt: skip
+def test_each_tool_answers(ctx, name, payload, key, expected):
+    result = invoke(name, payload, ctx)
+    assert result.ok, result.error
+    assert result.result[key] == pytest.approx(expected, abs=1e-5)
+
+
+BAD_REQUESTS = [
+    ("heat_balance", {"mass_flow_kg_s": -1, "delta_t_k": 5},
+     "`mass_flow_kg_s`: Input should be greater than or equal to 0 (got -1)"),
+    ("heat_balance", {"mass_flow_kg_s": 1, "delta_t": 5},
+     "`delta_t`: Extra inputs are not permitted; did you mean 'delta_t_k'?"),
+    ("heat_balance", {"mass_flow_kg_s": 1}, "`mass_flow_kg_s` and `delta_t_k` go together"),
+    ("heat_balance", {}, "give either `mass_flow_kg_s` and `delta_t_k`, or `cabinet`"),
+    ("hx_effectiveness", {"ntu": 1.0, "capacity_ratio": 1.5},
+     "`capacity_ratio`: Input should be less than or equal to 1"),
+    ("hx_effectiveness", {"hot_in_k": 290, "hot_out_k": 289, "cold_in_k": 300, "cold_out_k": 301},
+     "`hot_in_k` (290.0) must be above"),
+    ("affinity", {"machine": "compressor", "speed_from": 1, "speed_to": 1, "flow": 1},
+     "`machine`: Input should be 'pump' or 'fan'"),
+    ("confidence_interval", {"samples": [1.0]}, "`samples`: List should have at least 2 items"),
+    ("confidence_interval", {"samples": [1, 2], "method": "bayes"},
+     "`method`: Input should be 't', 'bootstrap' or 'percentile'"),
+    ("tower_power", {"heat_w": 1e5, "approach_k": 3, "wet_bulb_k": 290, "cells_active": 5},
+     "`cells_active` must be <= 2"),
+    ("whatif", {"steps": 1000}, "`steps`: Input should be less than or equal to 240"),
+    ("approach", {"tower": 0}, "no plant outputs yet"),
+    ("heatbalance", {}, "unknown tool 'heatbalance'; did you mean 'heat_balance'?"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("name,payload,expected", BAD_REQUESTS)
+def test_errors_name_the_field_and_what_is_valid(ctx, name, payload, expected):
+    result = invoke(name, payload, ctx)
+    assert not result.ok and result.result is None
+    assert expected in result.error
+
+
+def test_payload_as_json_text_and_garbage(ctx):
+    good = invoke("heat_balance", '{"mass_flow_kg_s": 2, "delta_t_k": 1}', ctx)
+    assert good.result["heat_w"] == pytest.approx(8372.0)
+    bad = invoke("heat_balance", "{not json", ctx)
+    assert not bad.ok and "not valid JSON" in bad.error
+
+
+def test_whatif_without_a_plant_is_a_clear_error(ctx):
+    result = invoke("whatif", {"supply_temp_setpoint_delta_k": 2}, ctx)
+    assert not result.ok and "needs the live twin" in result.error
+
+
+def test_whatif_and_indexed_tools_on_the_twin(plant):
+    power = np.full(plant.system.n_blade_groups, 60e3)
+    action = plant.default_action()
+    for _ in range(300):
+        plant.step(power, 290.0, action)
+    before = {k: v.copy() for k, v in plant.out.items()}
+    ctx = ToolContext(plant.system, plant=plant, lock=threading.Lock(), latest_out=plant.out)
+    r = invoke("whatif", {"supply_temp_setpoint_delta_k": 2.0, "cabinets": [1], "steps": 20}, ctx)
+    assert r.ok, r.error
+    delta = np.array(r.result["delta"]["supply_temp_k"])
+    assert delta[1] > 1.5 and np.all(np.abs(np.delete(delta, 1)) < 0.2)  # only cabinet 1 was changed
+    assert all(np.array_equal(plant.out[k], before[k]) for k in before)  # the plant is as it was
+    bad = invoke("whatif", {"cabinets": [7]}, ctx)
+    assert "`cabinets[0]` must be in [0, 4] (zero-based), got 7" in bad.error
+    split = invoke("whatif", {"valve_fractions": [[0.5, 0.5]] * 5}, ctx)
+    assert "`valve_fractions` must be 5 rows of 3 fractions" in split.error
+    hb = invoke("heat_balance", {"cabinet": 1}, ctx)
+    assert hb.ok and abs(hb.result["residual_pct"]) < 1.0  # steady state: heat in ~ heat out
+    ap = invoke("approach", {"tower": 1}, ctx)
+    assert ap.ok and ap.result["approach_k"] == pytest.approx(float(plant.out["approach_k"][1]))
+
+
+def test_catalog_has_schemas_for_every_tool():
+    entries = {e["name"]: e for e in catalog()}
+    assert set(entries) == set(TOOLS)
+    assert "mass_flow_kg_s" in entries["heat_balance"]["request"]["properties"]
+    json.dumps(entries)
+
+
+def test_cli_tools_call_and_list():
+    runner = CliRunner()
+    request = '{"machine": "fan", "speed_from": 1, "speed_to": 0.5, "flow": 4}'
+    ok = runner.invoke(app, ["tools", "call", "affinity", request])
+    assert ok.exit_code == 0, ok.output
+    assert json.loads(ok.stdout)["result"]["flow"] == pytest.approx(2.0)
+    bad = runner.invoke(app, ["tools", "call", "affinity", '{"machine": "fan"}'])
+    assert bad.exit_code == 1 and "`speed_from`: Field required" in bad.stdout
+    listing = runner.invoke(app, ["tools", "list", "--schemas"])
+    assert listing.exit_code == 0 and "whatif" in json.loads(listing.stdout)["tools"][-1]["name"]
