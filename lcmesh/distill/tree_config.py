@@ -28,3 +28,27 @@ class TreeDistillConfig:
     out: str = ""
     """Where the VIPER trees go (JSON; empty: the shipped lcmesh/artifacts/trees/case7.json); the naive
     (uniform) trees go beside it with a -naive suffix, the rules and the report too."""
+
+    def __post_init__(self) -> None:
+        for name in ("train_seeds", "reward_seeds"):
+            parse_seeds(getattr(self, name), name)
+        for name in ("samples", "max_depth_cdu", "max_depth_valves", "max_depth_tower", "min_samples_leaf"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
+
+
+def parse_seeds(text: str, field: str = "seeds") -> list[int]:
+    """'0-7' -> [0..7]; '1,5,9' -> [1, 5, 9]."""
+    text = text.strip()
+    try:
+        if "-" in text and "," not in text:
+            a, b = (int(v) for v in text.split("-"))
+            seeds = list(range(a, b + 1))
+        else:
+            seeds = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        seeds = []
+    if not seeds:
+        raise ValueError(f"`{field}` must look like '0-7' or '1,5,9', got {text!r}")
+    return seeds
+

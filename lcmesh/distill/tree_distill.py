@@ -11,22 +11,10 @@ from typing import Callable
 import numpy as np
 
 from lcmesh.distill.experience import Experience, collect_experience, resample
-from lcmesh.distill.tree_config import TreeDistillConfig
+from lcmesh.distill.tree_config import TreeDistillConfig, parse_seeds
 from lcmesh.distill.features import APPROACH_LEVELS_K, DP_RANGE_PA, SUPPLY_RANGE_K, FeatureLayout
 from lcmesh.distill.trees import DEFAULT_TREES, Tree, TreeController, feature_in_units, save_trees, tree_rules
 from lcmesh.twin.system import PSI_TO_PA
-
-
-def parse_seeds(text: str) -> list[int]:
-    """'0-7' -> [0..7]; '1,5,9' -> [1, 5, 9]."""
-    text = text.strip()
-    try:
-        if "-" in text and "," not in text:
-            a, b = (int(v) for v in text.split("-"))
-            return list(range(a, b + 1))
-        return [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"seeds must look like '0-7' or '1,5,9', got {text!r}") from None
 
 
 def teacher_labels(teacher, exp: Experience) -> tuple[np.ndarray, np.ndarray]:
@@ -119,6 +107,9 @@ def distill_trees(cfg: TreeDistillConfig, on_step: Callable[[str], None] | None 
     from lcmesh.distill.ppo_env import episode_rewards
     from lcmesh.twin.system import load_system
 
+    import torch
+
+    torch.set_num_threads(1)  # tiny networks: one thread is fastest, and polite to the other cores
     say = on_step or (lambda _msg: None)
     system = load_system(cfg.system)
     layout = FeatureLayout.for_system(system)
