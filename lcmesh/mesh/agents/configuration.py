@@ -1,0 +1,187 @@
+"""The Configuration agent: a versioned, validated, persisted configuration behind queryables.
+
+``lcmesh/{site}/config/{name}`` for ``name`` in all, controller, mode, speed_factor, guardrails,
+llm. A GET without payload answers the current ``ConfigDoc`` (every section answers the whole
+document, so a reader always sees the version). A GET with a ``ConfigUpdate`` payload changes
+the configuration: ``changes`` is a partial MeshConfig (nested dicts merge); through a section's
+key only that section may change. The new version is validated (pydantic, the controller
+registry, the guardrails against the plant), written to the store file atomically, audited in
+history's ``config_changes`` with the diff, and published on ``config/all``. Errors name the
+field and what would be valid.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import logging
+import os
+import threading
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from lcmesh.mesh import keys
+from lcmesh.mesh.agents.base import Agent, default_config
+from lcmesh.mesh.bus import QueryError
+from lcmesh.mesh.history import HistoryWriter
+from lcmesh.mesh.messages import CONFIG_SECTIONS, ConfigDoc, ConfigUpdate, MeshConfig
+from lcmesh.mesh.tools.guardrails import check_action
+from lcmesh.twin.system import SystemDescription, load_system
+
+log = logging.getLogger("lcmesh.mesh.agents.configuration")
+
+
+def format_errors(exc: ValidationError, prefix: str = "") -> str:
+    """One line per problem, each naming its field; unknown fields suggest the closest valid one."""
+    lines = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"])
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = "is not a configuration field"
+        elif "input" in err and not isinstance(err["input"], (dict, list)):
+            msg += f" (got {err['input']!r})"
+        lines.append(f"`{prefix}{loc}` {msg}" if loc else msg)
+    return "; ".join(lines)
+
+
+def _merge(base: dict, changes: dict) -> dict:
+    merged = dict(base)
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _diff(old: Any, new: Any, path: str = "") -> dict[str, list]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out: dict[str, list] = {}
+        for key in sorted(set(old) | set(new)):
+            out.update(_diff(old.get(key), new.get(key), f"{path}{key}."))
+        return out
+    return {} if old == new else {path.rstrip("."): [old, new]}
+
+
+class ConfigStore:
+    """The configuration's versions: validation, persistence, audit."""
+
+    def __init__(self, path: Path, seed: MeshConfig, system: SystemDescription | None, history: HistoryWriter | None):
+        self.path, self.system, self.history = Path(path), system, history
+        self._lock = threading.Lock()
+        if self.path.exists():
+            self.doc = ConfigDoc.model_validate_json(self.path.read_text())
+        else:
+            self.doc = ConfigDoc(source="configuration", version=1, config=self.validate(seed.model_dump()),
+                                 changed_by="settings",
+                                 reason="initial configuration from LCMESH_* settings")  # fmt: skip
+            self._persist(self.doc, {"*": [None, "initial"]})
+
+    def validate(self, data: dict) -> MeshConfig:
+        """A MeshConfig from `data`, checked against the controller registry and the plant."""
+        from lcmesh.twin.controllers import REGISTRY
+
+        try:
+            config = MeshConfig.model_validate(data)
+        except ValidationError as exc:
+            raise QueryError(format_errors(exc)) from None
+        if config.controller not in REGISTRY:
+            close = difflib.get_close_matches(config.controller, REGISTRY, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            known = ", ".join(sorted(REGISTRY))
+            raise QueryError(f"`controller` must be one of {known}, got {config.controller!r}{hint}")
+        if config.mode == "manual" and config.manual_action is None:
+            raise QueryError("`mode` 'manual' needs `manual_action` (setpoints for every cabinet and tower)")
+        if self.system is not None:
+            try:
+                config.guardrails.check_system(self.system)
+            except ValueError as exc:
+                raise QueryError(f"`guardrails`: {exc}") from None
+            if config.manual_action is not None:
+                problem = check_action(config.manual_action.to_action(), self.system)
+                if problem:
+                    raise QueryError(f"`manual_action`: {problem}")
+        return config
+
+    def apply(self, update: ConfigUpdate, section: str) -> tuple[ConfigDoc, dict]:
+        """A new version from `update` through the `section` key; QueryError if it is not valid."""
+        if section != "all":
+            others = sorted(set(update.changes) - {section})
+            if others:
+                raise QueryError(f"through config/{section} only `{section}` may change, not {others}; "
+                                 "use config/all for several sections")  # fmt: skip
+        with self._lock:
+            current = self.doc
+            if update.expected_version is not None and update.expected_version != current.version:
+                raise QueryError(f"`expected_version` is {update.expected_version} but the current version is "
+                                 f"{current.version}; re-read and retry")  # fmt: skip
+            old = current.config.model_dump(mode="json")
+            config = self.validate(_merge(old, update.changes))
+            changes = _diff(old, config.model_dump(mode="json"))
+            if not changes:
+                return current, {}
+            doc = ConfigDoc(source="configuration", version=current.version + 1, config=config,
+                            changed_by=update.by, reason=update.reason)  # fmt: skip
+            self._persist(doc, changes)
+            self.doc = doc
+        return doc, changes
+
+    def _persist(self, doc: ConfigDoc, changes: dict) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        tmp.write_text(doc.model_dump_json(indent=2))
+        os.replace(tmp, self.path)
+        if self.history is not None:
+            self.history.add_config_change(doc, changes)
+
+
+class ConfigurationAgent(Agent):
+    role = "configuration"
+
+    def __init__(self, settings, agent_id: str | None = None):
+        super().__init__(settings, agent_id)
+        self.store: ConfigStore | None = None
+        self.tally = {"changes": 0, "refused": 0}
+
+    def on_start(self) -> None:
+        s = self.settings
+        self.history = HistoryWriter(s.history_file)
+        try:
+            system = load_system(s.system)
+        except Exception as exc:  # the store still works; plant-specific checks are skipped
+            log.warning("system %r does not load (%s); guardrails are not checked against a plant", s.system, exc)
+            system = None
+        path = s.configuration.store_path or s.data_dir / "config.json"
+        self.store = ConfigStore(path, default_config(s), system, self.history)
+        log.info("configuration version %d from %s", self.store.doc.version, path)
+        for name in CONFIG_SECTIONS:
+            self.serve(keys.config(self.site, name), lambda payload, name=name: self._query(name, payload))
+        self.bus.publish(keys.config(self.site, "all"), self.store.doc, block=True)
+
+    def details(self) -> dict:
+        return {"version": self.store.doc.version if self.store else None, **self.tally}
+
+    def _query(self, section: str, payload: bytes | None) -> ConfigDoc:
+        if not payload:
+            return self.store.doc
+        try:
+            update = ConfigUpdate.model_validate_json(payload)
+        except ValidationError as exc:
+            self.tally["refused"] += 1
+            raise QueryError(f"invalid ConfigUpdate: {format_errors(exc)}") from None
+        except ValueError as exc:
+            self.tally["refused"] += 1
+            raise QueryError(f"the request is not JSON: {exc}") from None
+        try:
+            doc, changes = self.store.apply(update, section)
+        except QueryError:
+            self.tally["refused"] += 1
+            raise
+        if changes:
+            self.tally["changes"] += 1
+            log.info("config version %d by %s: %s", doc.version, update.by, json.dumps(changes, default=str))
+            self.bus.publish(keys.config(self.site, "all"), doc, block=True)
+        return doc

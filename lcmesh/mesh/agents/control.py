@@ -1,0 +1,254 @@
+"""The Control agent: runs the configured policy on each plant state and publishes proposals.
+
+A proposal carries a decision id, the controller's name and version, the action, and the key
+facts behind it (hottest branch, setpoints and their changes: cheap, so they ride on the
+critical path). Right after publishing it computes the full grounding facts (the toolbox's
+``cabinet_decision_facts`` for the cabinet with the hottest branch, or the controller's own
+``explain_facts``) and the deterministic text, and writes that explanation, under the same
+decision id, to history and to ``explain/{decision_id}``.
+
+By default the decision runs in the bus callback (no thread hand-off: lowest latency). For a policy
+slower than a control period (the LLM), ``inline = false`` moves it to a worker thread with a
+one-item mailbox (stale states are skipped, not queued) and, while a decision is in progress, the
+controller's last action is re-sent for each new step, so the Sensor never falls back for want of it.
+
+The controller follows the Configuration agent's ``controller``; one that can not load (not
+trained yet, unknown) is replaced by G36 with a warning event.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import threading
+import time
+
+import numpy as np
+
+from lcmesh.mesh import keys
+from lcmesh.mesh.agents.base import Agent, LatestSlot
+from lcmesh.mesh.history import HistoryWriter
+from lcmesh.mesh.messages import (
+    ActionModel, AppliedAction, Explanation, FactModel, MeshConfig, PlantState, Proposal, new_id,
+    plant_state_to_observation, utc_now,
+)  # fmt: skip
+from lcmesh.twin.controllers import Controller, Observation, make_controller
+from lcmesh.twin.plant import PlantAction
+from lcmesh.twin.system import SystemDescription, load_system
+
+log = logging.getLogger("lcmesh.mesh.agents.control")
+FALLBACK_CONTROLLER = "g36"
+_K = 273.15
+
+
+def build_controller(name: str, system: SystemDescription) -> tuple[Controller, str | None]:
+    """`name`'s controller, or G36 and a note saying why `name` could not be used."""
+    try:
+        return make_controller(name, system), None
+    except Exception as exc:  # unknown name, module not written yet, no trained artifact
+        why = f"{type(exc).__name__}: {exc}"
+        note = f"controller {name!r} is not available ({why}); using {FALLBACK_CONTROLLER!r}"
+        return make_controller(FALLBACK_CONTROLLER, system), note
+
+
+def decision_facts(
+    controller: Controller, system: SystemDescription, obs: Observation, action: PlantAction,
+    previous: PlantAction | None,
+) -> list[FactModel]:  # fmt: skip
+    """The full grounding facts of a decision: the controller's own, else the toolbox's for the hottest cabinet."""
+    own = getattr(controller, "explain_facts", None)
+    if callable(own):
+        facts = own(obs, action)
+        items = facts.items() if isinstance(facts, dict) else None
+        if items is not None:
+            return [FactModel(name=str(k), value=_plain(v)) for k, v in items]
+        return [FactModel.model_validate(_fact_dict(f)) for f in facts]
+    cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
+    try:
+        toolbox = importlib.import_module("lcmesh.mesh.tools.facts")
+    except ImportError:
+        return key_facts(obs, action, previous)
+    facts = toolbox.cabinet_decision_facts(system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
+    return [FactModel.model_validate(_fact_dict(f)) for f in facts]
+
+
+def explanation_text(facts: list[FactModel]) -> str:
+    """The deterministic short explanation (toolbox renderer), or the facts' sentences joined."""
+    try:
+        explain = importlib.import_module("lcmesh.mesh.tools.explain")
+        toolbox = importlib.import_module("lcmesh.mesh.tools.facts")
+        return explain.render_explanation([toolbox.Fact.model_validate(f.model_dump()) for f in facts], "short")
+    except Exception:  # renderer missing or facts not of its kind (a controller's own)
+        return "; ".join(f.text for f in facts if f.text) or ", ".join(f"{f.name} = {f.value}" for f in facts)
+
+
+def key_facts(obs: Observation, action: PlantAction, previous: PlantAction | None) -> list[FactModel]:
+    """The few numbers a proposal carries (cheap, on the critical path): where it is hottest, what changed."""
+    branch = obs.out["branch_temp_k"]
+    cabinet, j = (int(i) for i in np.unravel_index(np.argmax(branch), branch.shape))
+    supply_c = float(action.supply_temp_setpoint_k[cabinet]) - _K
+    lw_c = float(np.mean(action.lw_setpoint_k)) - _K
+    facts = [
+        FactModel(name="hottest_branch", value=f"cabinet {cabinet + 1} branch {j + 1}", kind="label",
+                  text=f"the hottest branch is branch {j + 1} of cabinet {cabinet + 1}"),
+        FactModel(name="hottest_branch_temp", value=round(float(branch[cabinet, j]) - _K, 2), unit="degC",
+                  kind="observation", text=f"it runs at {float(branch[cabinet, j]) - _K:.1f} °C"),
+        FactModel(name="max_blade_temp", value=round(float(obs.out["blade_temp_k"].max()) - _K, 2), unit="degC",
+                  kind="observation"),
+        FactModel(name="supply_setpoint", value=round(supply_c, 2), unit="degC", kind="action",
+                  text=f"cabinet {cabinet + 1} supply setpoint {supply_c:.1f} °C"),
+        FactModel(name="tower_lw_setpoint", value=round(lw_c, 2), unit="degC", kind="action"),
+        FactModel(name="wet_bulb", value=round(obs.wet_bulb_k - _K, 2), unit="degC", kind="observation"),
+    ]  # fmt: skip
+    if previous is not None:
+        supply_change = supply_c - (float(previous.supply_temp_setpoint_k[cabinet]) - _K)
+        lw_change = lw_c - (float(np.mean(previous.lw_setpoint_k)) - _K)
+        facts += [FactModel(name="supply_setpoint_change", value=round(supply_change, 3), unit="K", kind="change"),
+                  FactModel(name="tower_lw_change", value=round(lw_change, 3), unit="K", kind="change")]  # fmt: skip
+    return facts
+
+
+def _fact_dict(fact) -> dict:
+    data = fact.model_dump() if hasattr(fact, "model_dump") else dict(fact)
+    data["value"] = _plain(data.get("value"))
+    return data
+
+
+def _plain(value):
+    if isinstance(value, (np.generic,)):
+        return value.item()
+    return value if isinstance(value, (int, float, str, bool)) or value is None else str(value)
+
+
+class ControlAgent(Agent):
+    role = "control"
+
+    def __init__(self, settings, agent_id: str | None = None):
+        super().__init__(settings, agent_id)
+        self.cfg = settings.control
+        self.system: SystemDescription | None = None
+        self.controller: Controller | None = None
+        self.controller_note: str | None = None
+        self._wanted: str | None = None
+        self._decide_lock = threading.Lock()
+        self._states = LatestSlot()
+        self._explain_jobs = LatestSlot()
+        self._previous: PlantAction | None = None
+        self._run_id: str | None = None
+        self._last_state_id: str | None = None
+        self._applied = threading.Event()
+        self._applied_step = -1
+        self._last_proposal: Proposal | None = None
+        self.tally = {"decisions": 0, "repeats": 0, "bad_states": 0, "explanations": 0}
+
+    def on_start(self) -> None:
+        self.system = load_system(self.settings.system)
+        self.history = HistoryWriter(self.settings.history_file) if self.cfg.explain else None
+        self.watch_config(self._on_config)
+        self._use_controller(self.config.controller)
+        self.subscribe(keys.applied(self.site, self.cfg.loop), AppliedAction, self._on_applied)
+        if self.cfg.inline:
+            self.subscribe(keys.plant_state(self.site), PlantState, self._decide, latest=True)
+        else:
+            self.subscribe(keys.plant_state(self.site), PlantState, self._on_state_async, latest=True)
+            self.spawn("decide", self._decide_loop)
+        if self.cfg.explain:
+            self.spawn("explain", self._explain_loop)
+
+    def details(self) -> dict:
+        c = self.controller
+        return {"controller": getattr(c, "name", None), "controller_version": getattr(c, "version", None),
+                "wanted": self.config.controller, "note": self.controller_note, **self.tally,
+                "skipped_states": self._states.replaced,
+                "skipped_explanations": self._explain_jobs.replaced}  # fmt: skip
+
+    def _on_config(self, old: MeshConfig, new: MeshConfig) -> None:
+        if new.controller != old.controller and self.controller is not None:
+            self._wanted = new.controller  # built before the next decision
+
+    def _on_applied(self, applied: AppliedAction) -> None:
+        self._previous = applied.action.to_action()
+        self._applied_step = applied.step
+        self._applied.set()
+
+    def _use_controller(self, name: str) -> None:
+        self.controller, self.controller_note = build_controller(name, self.system)
+        self.controller.reset()
+        if self.controller_note:
+            log.warning("%s", self.controller_note)
+            self.emit_event("warning", self.controller_note)
+        else:
+            log.info("controller %s version %s", self.controller.name, self.controller.version)
+
+    def _on_state_async(self, state: PlantState) -> None:
+        """Worker mode: while a slow decision runs, the controller's last action is re-sent for each new step."""
+        last = self._last_proposal
+        if self._decide_lock.locked() and last is not None and last.step < state.step:
+            repeat = last.model_copy(update={
+                "id": new_id(), "sent_at": utc_now(), "step": state.step, "state_id": state.id,
+                "facts": [FactModel(name="repeats_decision", value=last.decision_id, kind="label",
+                                    text=f"the decision of step {last.step} holds while the next one is computed")],
+            })  # fmt: skip
+            self.bus.publish(keys.proposal(self.site, self.cfg.loop), repeat)
+            self.tally["repeats"] += 1
+        self._states.put(state)
+
+    def _decide_loop(self) -> None:
+        while not self.stopping:
+            state = self._states.take(timeout_s=0.2)
+            if state is not None:
+                self._decide(state)
+
+    def _decide(self, state: PlantState) -> None:
+        """Decode, act, publish the proposal; hand the explanation to its own thread."""
+        with self._decide_lock:
+            if state.id == self._last_state_id:
+                return
+            t0 = time.perf_counter()
+            if self._wanted is not None:
+                wanted, self._wanted = self._wanted, None
+                self._use_controller(wanted)
+            try:
+                obs = plant_state_to_observation(state, self.system)
+            except ValueError as exc:
+                self.tally["bad_states"] += 1
+                log.warning("dropped plant state %s: %s", state.id, exc)
+                return
+            self._last_state_id = state.id
+            if state.run_id != self._run_id:
+                self._run_id = state.run_id
+                self.controller.reset()
+            ctrl, previous = self.controller, self._previous
+            action = ctrl.act(obs)
+            proposal = Proposal(
+                source=self.agent_id, loop=self.cfg.loop, step=state.step, state_id=state.id, controller=ctrl.name,
+                controller_version=str(ctrl.version), action=ActionModel.from_action(action),
+                facts=key_facts(obs, action, previous), compute_ms=(time.perf_counter() - t0) * 1e3,
+            )  # fmt: skip
+            self._applied.clear()
+            self._last_proposal = proposal
+            self.bus.publish(keys.proposal(self.site, self.cfg.loop), proposal)
+            self.tally["decisions"] += 1
+            if self.cfg.explain:
+                self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
+
+    def _explain_loop(self) -> None:
+        """Full facts and text for each decision, once the Sensor applied its step (off the critical path)."""
+        while not self.stopping:
+            job = self._explain_jobs.take(timeout_s=0.2)
+            if job is None:
+                continue
+            state, obs, action, previous, decision_id, ctrl = job
+            if self._applied_step < state.step:
+                self._applied.wait(timeout=0.5 * state.period_s)
+            try:
+                facts = decision_facts(ctrl, self.system, obs, action, previous)
+                explanation = Explanation(source=self.agent_id, decision_id=decision_id, step=state.step,
+                                          controller=ctrl.name, text=explanation_text(facts), facts=facts)  # fmt: skip
+            except Exception as exc:  # a facts bug must not stop the explanations of later decisions
+                log.exception("explaining decision %s failed", decision_id)
+                self._on_handler_error("explain", exc)
+                continue
+            self.history.add_explanation(explanation)
+            self.bus.publish(keys.explain(self.site, decision_id), explanation, block=True)
+            self.tally["explanations"] += 1

@@ -1,0 +1,379 @@
+"""The bus: the only module that imports zenoh.
+
+A ``Bus`` is one zenoh session (a client of the routers in ``MeshSettings.router_endpoints``,
+or a router itself) with typed helpers: publish a pydantic message, subscribe with a model
+(invalid payloads are logged, counted and dropped; handler exceptions are logged and counted;
+nothing ever raises into zenoh), serve and query queryables, declare and watch liveliness tokens.
+
+Late joiners: ``publish(..., latest=True)`` keeps the last payload per key and answers GETs on
+that key with it; ``subscribe(..., latest=True)`` issues that GET once after subscribing.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import logging
+import threading
+import time
+import weakref
+from collections import defaultdict, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numpy as np
+import zenoh
+from pydantic import BaseModel, ValidationError
+
+from lcmesh.mesh.settings import MeshSettings
+
+log = logging.getLogger("lcmesh.mesh.bus")
+M = TypeVar("M", bound=BaseModel)
+KEEP_ALIVE_PER_LEASE = 4
+
+
+class BusError(RuntimeError):
+    """The router can not be reached, or a query got no usable answer."""
+
+
+class QueryError(ValueError):
+    """Raised by a queryable handler to answer with an error message (a bad request, not a crash)."""
+
+
+@dataclass(frozen=True)
+class Reply:
+    ok: bool
+    payload: bytes
+    key: str
+
+
+class Declared:
+    """Something declared on the session; ``undeclare()`` is idempotent and never raises.
+
+    The bus keeps a reference until then: zenoh undeclares a token (or subscriber) it garbage-collects.
+    """
+
+    def __init__(self, entity, name: str, registry: set | None = None):
+        self._entity, self.name, self._registry = entity, name, registry
+        if registry is not None:
+            registry.add(self)
+
+    def undeclare(self) -> None:
+        entity, self._entity = self._entity, None
+        if self._registry is not None:
+            self._registry.discard(self)
+        if entity is not None:
+            try:
+                entity.undeclare()
+            except Exception as exc:  # closed session: nothing left to undeclare
+                log.debug("undeclare %s: %s", self.name, exc)
+
+
+class Counters:
+    """Per-key message counts, invalid payloads, handler errors and processing latency (thread-safe)."""
+
+    def __init__(self, latency_window: int = 2000):
+        self._lock = threading.Lock()
+        self.msgs_in: dict[str, int] = defaultdict(int)
+        self.msgs_out: dict[str, int] = defaultdict(int)
+        self.invalid: dict[str, int] = defaultdict(int)
+        self.handler_errors = 0
+        self._latency_ms: deque[float] = deque(maxlen=latency_window)
+
+    def count(self, table: dict[str, int], key: str) -> None:
+        with self._lock:
+            table[key] += 1
+
+    def error(self) -> None:
+        with self._lock:
+            self.handler_errors += 1
+
+    def latency(self, ms: float) -> None:
+        with self._lock:
+            self._latency_ms.append(ms)
+
+    def snapshot(self) -> dict:
+        with self._lock:
+            lat = np.array(self._latency_ms) if self._latency_ms else None
+            return {
+                "msgs_in": dict(self.msgs_in), "msgs_out": dict(self.msgs_out), "invalid": dict(self.invalid),
+                "handler_errors": self.handler_errors,
+                "latency_ms_p50": float(np.percentile(lat, 50)) if lat is not None else None,
+                "latency_ms_p99": float(np.percentile(lat, 99)) if lat is not None else None,
+            }  # fmt: skip
+
+
+def _base_config(settings: MeshSettings, mode: str) -> zenoh.Config:
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("transport/link/tx/lease", str(settings.lease_ms))
+    config.insert_json5("transport/link/tx/keep_alive", str(KEEP_ALIVE_PER_LEASE))
+    return config
+
+
+def client_config(settings: MeshSettings) -> zenoh.Config:
+    """A client of the routers in `settings.router_endpoints`; no multicast scouting."""
+    config = _base_config(settings, "client")
+    config.insert_json5("connect/endpoints", json.dumps(settings.router_endpoints))
+    return config
+
+
+def router_config(settings: MeshSettings) -> zenoh.Config:
+    """A router listening on `settings.listen_endpoints`, linked to `settings.router_peers`."""
+    config = _base_config(settings, "router")
+    config.insert_json5("listen/endpoints", json.dumps(settings.listen_endpoints))
+    if settings.router_peers:
+        config.insert_json5("connect/endpoints", json.dumps(settings.router_peers))
+    config.insert_json5("scouting/gossip/enabled", "false")
+    return config
+
+
+_OPEN_BUSES: weakref.WeakSet = weakref.WeakSet()
+
+
+def _close_open_buses() -> None:
+    """Close sessions left open: zenoh's callback threads are not daemons, so an open session blocks exit."""
+    for bus in list(_OPEN_BUSES):
+        bus.close()
+
+
+# threading's exit hook runs before the interpreter joins non-daemon threads (atexit runs after: too late)
+getattr(threading, "_register_atexit", atexit.register)(_close_open_buses)
+
+
+class Bus:
+    """One zenoh session with typed publish/subscribe/query helpers."""
+
+    def __init__(self, session, site: str, source: str):
+        self.session, self.site, self.source = session, site, source
+        self.counters = Counters()
+        self._publishers: dict[str, object] = {}
+        self._latest: dict[str, bytes] = {}
+        self._latest_served: dict[str, Declared] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        self.on_error: Callable[[str, BaseException], None] | None = None
+        self._declared: set[Declared] = set()
+        _OPEN_BUSES.add(self)
+
+    def _report(self, where: str, exc: BaseException) -> None:
+        self.counters.error()
+        if self.on_error is not None:
+            try:
+                self.on_error(where, exc)
+            except Exception:
+                log.exception("error hook failed")
+
+    # --- opening ------------------------------------------------------------------------------
+    @classmethod
+    def connect(cls, settings: MeshSettings, source: str, *, timeout_s: float | None = None) -> "Bus":
+        """A client session, retrying the routers with backoff for up to `timeout_s` (settings default)."""
+        limit = settings.connect_timeout_s if timeout_s is None else timeout_s
+        deadline, delay, attempt = time.monotonic() + limit, 0.05, 0
+        while True:
+            attempt += 1
+            try:
+                return cls(zenoh.open(client_config(settings)), settings.site, source)
+            except zenoh.ZError as exc:
+                if time.monotonic() + delay > deadline:
+                    raise BusError(
+                        f"could not reach a router at {', '.join(settings.router_endpoints)} after {attempt} "
+                        f"attempts in {limit:.0f} s ({exc}); start one with `lcmesh router` or set "
+                        "LCMESH_ROUTER_ENDPOINTS"
+                    ) from exc
+                if attempt == 1 or attempt % 10 == 0:
+                    log.info("router not reachable yet (%s); retrying", exc)
+                time.sleep(delay)
+                delay = min(1.0, delay * 2)
+
+    @classmethod
+    def open_router(cls, settings: MeshSettings, source: str = "router") -> "Bus":
+        """A router-mode session (what `lcmesh router` runs)."""
+        try:
+            return cls(zenoh.open(router_config(settings)), settings.site, source)
+        except zenoh.ZError as exc:
+            raise BusError(f"could not start a router on {', '.join(settings.listen_endpoints)}: {exc}") from exc
+
+    def short(self, key: str) -> str:
+        """`key` without the ``lcmesh/{site}/`` prefix (counter names)."""
+        prefix = f"lcmesh/{self.site}/"
+        return key[len(prefix):] if key.startswith(prefix) else key
+
+    # --- publish / subscribe ------------------------------------------------------------------
+    def publish(self, key: str, msg: BaseModel, *, latest: bool = False, block: bool = False) -> None:
+        """Publish `msg` as JSON; with `latest`, also answer GETs on `key` with it.
+
+        `block`: wait for room in a full send queue instead of dropping (for what must not be lost:
+        applied actions, alerts, events, config); periodic samples that the next one supersedes drop.
+        """
+        self.publish_raw(key, msg.model_dump_json().encode(), latest=latest, block=block)
+
+    def publish_raw(self, key: str, payload: bytes, *, latest: bool = False, block: bool = False) -> None:
+        if self._closed:
+            return
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            with self._lock:
+                publisher = self._publishers.get(key)
+                if publisher is None:
+                    congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+                    publisher = self.session.declare_publisher(key, express=True, congestion_control=congestion)
+                    self._publishers[key] = publisher
+        if latest:
+            self._latest[key] = payload
+            if key not in self._latest_served:
+                self._latest_served[key] = self.serve_raw(key, lambda _payload, k=key: self._latest.get(k))
+        try:
+            publisher.put(payload)
+        except zenoh.ZError as exc:
+            log.warning("publish on %s failed: %s", key, exc)
+            return
+        self.counters.count(self.counters.msgs_out, self.short(key))
+
+    def subscribe(
+        self, key: str, model: type[M], handler: Callable[[M], None], *, latest: bool = False
+    ) -> Declared:
+        """Call `handler(model)` for each valid message on `key` (a key expression; wildcards allowed)."""
+        name = self.short(key)
+
+        def on_payload(payload: bytes, where: str) -> None:
+            self.counters.count(self.counters.msgs_in, name)
+            try:
+                msg = model.model_validate_json(payload)
+            except (ValidationError, ValueError) as exc:
+                self.counters.count(self.counters.invalid, name)
+                n = self.counters.invalid[name]
+                if n <= 10 or n % 1000 == 0:  # a flood of garbage must not flood the log too
+                    log.warning("dropped invalid %s #%d on %s: %s", model.__name__, n, where, _first_line(exc))
+                return
+            t0 = time.perf_counter()
+            try:
+                handler(msg)
+            except Exception as exc:
+                log.exception("handler for %s failed", where)
+                self._report(where, exc)
+            finally:
+                self.counters.latency((time.perf_counter() - t0) * 1e3)
+
+        def on_sample(sample) -> None:
+            try:
+                on_payload(sample.payload.to_bytes(), str(sample.key_expr))
+            except Exception:  # never raise into zenoh
+                self.counters.error()
+                log.exception("subscriber callback on %s failed", key)
+
+        subscriber = Declared(self.session.declare_subscriber(key, on_sample), key, self._declared)
+        if latest:
+            for reply in self.query(key, timeout_s=1.0):
+                if reply.ok:
+                    on_payload(reply.payload, reply.key)
+        return subscriber
+
+    # --- queries ------------------------------------------------------------------------------
+    def serve(self, key: str, handler: Callable[[bytes | None], BaseModel | None]) -> Declared:
+        """Answer GETs on `key` with `handler(payload)`'s JSON; QueryError or any failure becomes an error reply."""
+
+        def raw(payload: bytes | None) -> bytes | None:
+            result = handler(payload)
+            return None if result is None else result.model_dump_json().encode()
+
+        return self.serve_raw(key, raw)
+
+    def serve_raw(self, key: str, handler: Callable[[bytes | None], bytes | None]) -> Declared:
+        name = self.short(key)
+
+        def on_query(query) -> None:
+            try:
+                self.counters.count(self.counters.msgs_in, name)
+                payload = query.payload.to_bytes() if query.payload is not None else None
+                try:
+                    answer = handler(payload)
+                except (QueryError, ValidationError, ValueError) as exc:
+                    self.counters.count(self.counters.invalid, name)
+                    query.reply_err(str(exc).encode())
+                    return
+                except Exception as exc:
+                    log.exception("queryable %s failed", key)
+                    self._report(key, exc)
+                    query.reply_err(f"internal error in {self.source}: {type(exc).__name__}: {exc}".encode())
+                    return
+                if answer is not None:
+                    query.reply(query.key_expr, answer)
+            except Exception:  # never raise into zenoh
+                self.counters.error()
+                log.exception("query callback on %s failed", key)
+
+        return Declared(self.session.declare_queryable(key, on_query), key, self._declared)
+
+    def query(self, key: str, payload: bytes | str | None = None, *, timeout_s: float = 2.0) -> list[Reply]:
+        """All replies to a GET on `key` (errors included, as ``ok=False``)."""
+        if isinstance(payload, str):
+            payload = payload.encode()
+        replies: list[Reply] = []
+        try:
+            for reply in self.session.get(key, payload=payload, timeout=timeout_s):
+                if reply.ok is not None:
+                    replies.append(Reply(True, reply.ok.payload.to_bytes(), str(reply.ok.key_expr)))
+                else:
+                    replies.append(Reply(False, reply.err.payload.to_bytes(), key))
+        except zenoh.ZError as exc:
+            raise BusError(f"query on {key} failed: {exc}") from exc
+        return replies
+
+    def request(self, key: str, model: type[M], payload: BaseModel | bytes | None = None, *,
+                timeout_s: float = 2.0) -> M:  # fmt: skip
+        """The first valid answer to a GET on `key`; BusError with the error text if there is none."""
+        body = payload.model_dump_json().encode() if isinstance(payload, BaseModel) else payload
+        errors = []
+        for reply in self.query(key, body, timeout_s=timeout_s):
+            if not reply.ok:
+                errors.append(reply.payload.decode(errors="replace"))
+                continue
+            try:
+                return model.model_validate_json(reply.payload)
+            except ValidationError as exc:
+                errors.append(f"invalid {model.__name__}: {_first_line(exc)}")
+        raise BusError(f"no answer from {key}" + (f": {'; '.join(errors)}" if errors else " (nobody serves it)"))
+
+    # --- liveliness ---------------------------------------------------------------------------
+    def declare_token(self, key: str) -> Declared:
+        return Declared(self.session.liveliness().declare_token(key), key, self._declared)
+
+    def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None], *, history: bool = True) -> Declared:
+        """Call ``on_change(token_key, alive)`` when a token matching `key` appears or goes."""
+
+        def on_sample(sample) -> None:
+            try:
+                on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            except Exception:
+                self.counters.error()
+                log.exception("liveliness callback on %s failed", key)
+
+        return Declared(self.session.liveliness().declare_subscriber(key, on_sample, history=history), key,
+                        self._declared)
+
+    def alive(self, key: str, *, timeout_s: float = 1.0) -> list[str]:
+        """Keys of the live tokens matching `key`."""
+        found = []
+        for reply in self.session.liveliness().get(key, timeout=timeout_s):
+            if reply.ok is not None:
+                found.append(str(reply.ok.key_expr))
+        return found
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for declared in self._latest_served.values():
+            declared.undeclare()
+        try:
+            self.session.close()
+        except Exception as exc:
+            log.debug("closing the session: %s", exc)
+
+
+def _first_line(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return " ".join(text[:3]) if text else type(exc).__name__

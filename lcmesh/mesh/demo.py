@@ -1,0 +1,193 @@
+"""``lcmesh demo``: a router and every agent as processes, on the Frontier day, until Ctrl-C.
+
+The demo process starts the router and the Orchestration agent (which starts and supervises the
+others), restarts either if it dies, prints agent events as they happen, and on Ctrl-C (or
+SIGTERM, or after ``duration_s``) stops the orchestrator (which stops its agents in reverse
+order), then the router, then anything a killed orchestrator left behind (its pid files).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from lcmesh.mesh import keys
+from lcmesh.mesh.agents.registry import unavailable_reason
+from lcmesh.mesh.bus import Bus, BusError
+from lcmesh.mesh.history import HistoryWriter
+from lcmesh.mesh.messages import AgentEvent, ConfigDoc, ConfigUpdate
+from lcmesh.mesh.processes import Child, agent_child, child_env, router_child, tcp_host_port, wait_for_port
+from lcmesh.mesh.settings import MeshSettings
+
+log = logging.getLogger("lcmesh.mesh.demo")
+
+
+class Demo:
+    """The demo's processes and their supervision (also used by tests and the benchmark)."""
+
+    def __init__(self, settings: MeshSettings, say: Callable[[str], None] = print):
+        self.settings, self.say = settings, say
+        self.env = child_env(None, **settings.to_env())
+        self.router: Child | None = None
+        self.orchestrator: Child | None = None
+        self.bus: Bus | None = None
+        self.restarts = {"router": 0, "orchestration": 0}
+        self._orchestrator_lost = threading.Event()
+
+    def start(self) -> None:
+        s = self.settings
+        s.log_dir.mkdir(parents=True, exist_ok=True)
+        self.router = router_child(self.env, s.log_dir / "router.log").start()
+        host, port = tcp_host_port(s.listen_endpoints[0])
+        if not wait_for_port(host, port, timeout_s=15.0):
+            tail = self.router.log_tail()
+            self.stop()
+            raise BusError(f"the router did not open {s.listen_endpoints[0]}:\n{tail}")
+        self.orchestrator = agent_child("orchestration", "orchestration", self.env, s.log_dir / "orchestration.log")
+        self.orchestrator.start()
+        try:
+            self.bus = Bus.connect(s, "demo", timeout_s=10.0)
+            self.bus.subscribe(keys.events(s.site), AgentEvent, self._on_event)
+            self.bus.watch_liveliness(keys.alive(s.site, "orchestration", "orchestration"), self._on_orchestrator)
+        except BusError as exc:
+            self.say(f"note: not following agent events ({exc})")
+
+    def _on_orchestrator(self, _key: str, alive: bool) -> None:
+        if not alive:  # dead or hung (a stopped process keeps running but loses its session after the lease)
+            self._orchestrator_lost.set()
+
+    def _on_event(self, event: AgentEvent) -> None:
+        first_line = event.detail.splitlines()[0] if event.detail else ""
+        self.say(f"[{event.sent_at:%H:%M:%S}] {event.agent_id}: {event.kind} {first_line}")
+
+    def configure(self, changes: dict, stop: threading.Event, timeout_s: float = 60.0) -> None:
+        """Apply `changes` through the Configuration agent (retried until it answers)."""
+        key = keys.config(self.settings.site, "all")
+        update = ConfigUpdate(changes=changes, by="lcmesh demo", reason="command-line options")
+        deadline = time.monotonic() + timeout_s
+        while self.bus is not None and not stop.is_set():
+            try:
+                doc = self.bus.request(key, ConfigDoc, update, timeout_s=2.0)
+            except BusError as exc:
+                if "nobody serves it" not in str(exc) or time.monotonic() > deadline:
+                    self.say(f"could not apply {changes}: {exc}")
+                    return
+                self.watch()
+                stop.wait(0.2)
+                continue
+            self.say(f"configuration version {doc.version}: {', '.join(f'{k} = {v}' for k, v in changes.items())}")
+            return
+
+    def watch(self) -> None:
+        """Restart the router or the orchestrator if either died or hung (call periodically)."""
+        if self._orchestrator_lost.is_set():
+            self._orchestrator_lost.clear()
+            if self.orchestrator is not None and self.orchestrator.running():
+                self.say("the orchestrator lost its session (hung?); killing it")
+                self.orchestrator.signal(signal.SIGKILL)
+                self.orchestrator.popen.wait(timeout=5)
+        for name in ("router", "orchestrator"):
+            child = getattr(self, name)
+            if child is not None and not child.running():
+                self.say(f"{name} exited with code {child.popen.returncode}; restarting\n{child.log_tail(8)}")
+                child.start()
+                self.restarts["router" if name == "router" else "orchestration"] += 1
+
+    def stop(self) -> None:
+        """Orchestrator (and its agents), then the router, then leftovers from pid files."""
+        timeout = self.settings.orchestration.stop_timeout_s
+        if self.orchestrator is not None:
+            self.orchestrator.stop(timeout_s=timeout * 3)
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        for pid in _leftover_pids(self.settings.data_dir / "pids"):
+            self.say(f"stopping leftover agent pid {pid}")
+            _kill(pid)
+        if self.router is not None:
+            self.router.stop(timeout_s=timeout)
+
+
+def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes: dict | None = None,
+             resume: bool = False, say: Callable[[str], None] = print) -> int:  # fmt: skip
+    """Run until Ctrl-C/SIGTERM (or `duration_s` > 0 seconds); 0 on a clean stop.
+
+    A new run of the plant starts unless `resume` (then the Sensor continues the last unfinished
+    run of the same system and trace from its checkpoint).
+
+    `config_changes` (e.g. a speed factor given on the command line) are sent to the Configuration
+    agent once it answers, as an audited change: a persisted configuration from an earlier run would
+    otherwise win over the settings that only seed its first version.
+    """
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    demo = Demo(settings, say)
+    if not resume and settings.history_file.exists():
+        writer = HistoryWriter(settings.history_file)
+        if writer.end_open_runs():
+            say("starting a new run (--resume continues the last one)")
+        writer.close()
+    try:
+        demo.start()
+        ui = unavailable_reason("ui")
+        with_ui = ui is None and "ui" in settings.orchestration.roles
+        where = f"UI on http://{settings.ui_host}:{settings.ui_port}"
+        if not with_ui:
+            where = f"no UI ({ui or 'not in the roles'})"
+        say(f"lc-mesh demo: {settings.system} on {settings.trace} at {settings.speed_factor:g}x, controller "
+            f"{settings.controller}; router {settings.listen_endpoints[0]}; {where}; history {settings.history_file}; "
+            f"logs {settings.log_dir}. Ctrl-C stops.")  # fmt: skip
+        if config_changes:
+            demo.configure(config_changes, stop)
+        deadline = time.monotonic() + duration_s if duration_s > 0 else None
+        while not stop.wait(0.2):
+            demo.watch()
+            if deadline is not None and time.monotonic() > deadline:
+                break
+    finally:
+        say("stopping the mesh ...")
+        demo.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    say("stopped")
+    return 0
+
+
+def _leftover_pids(folder: Path) -> list[int]:
+    pids = []
+    for path in folder.glob("*.pid") if folder.exists() else []:
+        try:
+            pid = int(path.read_text().strip())
+        except ValueError:
+            continue
+        if _is_agent(pid):
+            pids.append(pid)
+        path.unlink(missing_ok=True)
+    return pids
+
+
+def _is_agent(pid: int) -> bool:
+    try:
+        return b"lcmesh.mesh.agents" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+
+
+def _kill(pid: int) -> None:
+    for sig in (signal.SIGCONT, signal.SIGTERM):
+        try:
+            os.kill(pid, sig)
+        except ProcessLookupError:
+            return
+    deadline = time.monotonic() + 5.0
+    while _is_agent(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass

@@ -1,0 +1,329 @@
+"""History: plant states, applied actions, explanations, alerts, config changes and agent events in SQLite.
+
+One file (``MeshSettings.history_file``), WAL mode with a busy timeout so several agent
+processes write to it at once: the Sensor writes each step's applied action, the next plant
+state and a checkpoint of the FMU state in one transaction (so a restarted Sensor resumes with
+no gap in step indices), the Control agent its explanations, the Maintenance agent its alerts,
+the Configuration agent config changes, the Orchestrator agent events. Each producer writes
+before it publishes, so what was on the bus is in the file.
+
+``HistoryReader`` is the read API the UI uses (documented in docs/mesh.md).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lcmesh.mesh.messages import AgentEvent, Alert, AppliedAction, ConfigDoc, Explanation, PlantState, utc_now
+
+BLADE_BAND_K = (293.15, 313.15)
+STATE_FIELDS = (
+    "wet_bulb_k", "blade_temp_max_k", "blade_temp_mean_k", "blade_in_band_pct", "supply_temp_mean_k",
+    "ct_leaving_temp_mean_k", "it_power_w", "it_cooling_w", "ct_fan_power_w", "pump_power_w", "heat_rejected_w",
+)  # fmt: skip
+_SCHEMA = f"""
+CREATE TABLE IF NOT EXISTS runs (
+    run_id TEXT PRIMARY KEY, system TEXT NOT NULL, system_hash TEXT NOT NULL, trace TEXT NOT NULL,
+    started_at TEXT NOT NULL, ended_at TEXT);
+CREATE TABLE IF NOT EXISTS plant_states (
+    run_id TEXT NOT NULL, step INTEGER NOT NULL, time_s REAL NOT NULL, sent_at TEXT NOT NULL,
+    {", ".join(f"{f} REAL" for f in STATE_FIELDS)}, faults_active INTEGER NOT NULL, payload TEXT,
+    PRIMARY KEY (run_id, step));
+CREATE TABLE IF NOT EXISTS actions (
+    run_id TEXT NOT NULL, step INTEGER NOT NULL, time_s REAL NOT NULL, decision_id TEXT,
+    source_controller TEXT NOT NULL, source_version TEXT NOT NULL, fallback INTEGER NOT NULL,
+    fallback_reason TEXT, rejected_reason TEXT, n_clamps INTEGER NOT NULL, clamps TEXT NOT NULL,
+    latency_ms REAL, late_ms REAL NOT NULL, applied_at TEXT NOT NULL, action TEXT NOT NULL,
+    PRIMARY KEY (run_id, step));
+CREATE TABLE IF NOT EXISTS checkpoints (
+    run_id TEXT PRIMARY KEY, step INTEGER NOT NULL, fmu_state BLOB NOT NULL, sensor_state TEXT NOT NULL,
+    saved_at TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS explanations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, decision_id TEXT NOT NULL, step INTEGER NOT NULL,
+    controller TEXT NOT NULL, level TEXT NOT NULL, text TEXT NOT NULL, facts TEXT NOT NULL,
+    source TEXT NOT NULL, created_at TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS explanations_decision ON explanations (decision_id);
+CREATE TABLE IF NOT EXISTS alerts (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, alert_id TEXT NOT NULL, state TEXT NOT NULL, kind TEXT NOT NULL,
+    severity TEXT NOT NULL, location TEXT NOT NULL, message TEXT NOT NULL, evidence TEXT NOT NULL,
+    prescription TEXT NOT NULL, predicted_failure_s REAL, step INTEGER, time_s REAL, source TEXT NOT NULL,
+    created_at TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS config_changes (
+    version INTEGER PRIMARY KEY, changed_by TEXT NOT NULL, reason TEXT NOT NULL, changes TEXT NOT NULL,
+    config TEXT NOT NULL, created_at TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS agent_events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, role TEXT NOT NULL, agent_id TEXT NOT NULL,
+    detail TEXT NOT NULL, pid INTEGER, source TEXT NOT NULL, created_at TEXT NOT NULL);
+"""
+
+
+def _connect(path: Path, *, readonly: bool = False) -> sqlite3.Connection:
+    if readonly:
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, check_same_thread=False, timeout=10.0)
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        conn = sqlite3.connect(str(path), check_same_thread=False, timeout=10.0, isolation_level=None)
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute("PRAGMA synchronous=NORMAL")
+    conn.execute("PRAGMA busy_timeout=10000")
+    conn.row_factory = sqlite3.Row
+    return conn
+
+
+def state_summary(msg: PlantState) -> dict[str, float | None]:
+    """The summary columns of a plant state row."""
+    out = msg.outputs
+
+    def get(name: str, reduce) -> float | None:
+        values = out.get(name)
+        return float(reduce(np.asarray(values))) if values else None
+
+    temps = np.asarray(out.get("blade_temp_k") or [np.nan])
+    in_band = float(np.mean((temps > BLADE_BAND_K[0]) & (temps < BLADE_BAND_K[1])) * 100.0)
+    return {
+        "wet_bulb_k": msg.wet_bulb_k, "blade_temp_max_k": get("blade_temp_k", np.max),
+        "blade_temp_mean_k": get("blade_temp_k", np.mean), "blade_in_band_pct": in_band,
+        "supply_temp_mean_k": get("supply_temp_k", np.mean),
+        "ct_leaving_temp_mean_k": get("ct_leaving_temp_k", np.mean),
+        "it_power_w": get("it_power_w", np.sum), "it_cooling_w": get("it_cooling_w", np.sum),
+        "ct_fan_power_w": get("ct_fan_power_w", np.sum), "pump_power_w": get("pump_power_w", np.sum),
+        "heat_rejected_w": get("heat_rejected_w", np.sum),
+    }  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    run_id: str
+    step: int
+    fmu_state: bytes
+    sensor_state: str  # JSON the Sensor needs besides the FMU state (last safe action, faults)
+
+
+class HistoryWriter:
+    """Writes history rows; safe to share between threads of one process."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self._conn = _connect(self.path)
+        self._lock = threading.Lock()
+        with self._lock:
+            self._conn.executescript(_SCHEMA)
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+
+    def _write(self, statements: Iterable[tuple[str, Sequence]]) -> None:
+        with self._lock:
+            self._conn.execute("BEGIN IMMEDIATE")
+            try:
+                for sql, params in statements:
+                    self._conn.execute(sql, params)
+                self._conn.execute("COMMIT")
+            except BaseException:
+                self._conn.execute("ROLLBACK")
+                raise
+
+    # --- runs and steps (the Sensor) ---------------------------------------------------------
+    def start_run(self, run_id: str, system: str, system_hash: str, trace: str) -> None:
+        self._write([("INSERT INTO runs VALUES (?, ?, ?, ?, ?, NULL)",
+                      (run_id, system, system_hash, trace, utc_now().isoformat()))])  # fmt: skip
+
+    def end_run(self, run_id: str) -> None:
+        self._write([("UPDATE runs SET ended_at = ? WHERE run_id = ?", (utc_now().isoformat(), run_id))])
+
+    def end_open_runs(self) -> int:
+        """Mark every unfinished run finished (the next Sensor starts a new one); how many there were."""
+        with self._lock:
+            cursor = self._conn.execute("UPDATE runs SET ended_at = ? WHERE ended_at IS NULL", (utc_now().isoformat(),))
+            return cursor.rowcount
+
+    def resumable(self, system_hash: str, trace: str) -> Checkpoint | None:
+        """The checkpoint of the newest unfinished run of this system and trace, if any."""
+        with self._lock:
+            row = self._conn.execute(
+                "SELECT c.run_id, c.step, c.fmu_state, c.sensor_state FROM runs r JOIN checkpoints c USING (run_id) "
+                "WHERE r.system_hash = ? AND r.trace = ? AND r.ended_at IS NULL ORDER BY r.started_at DESC LIMIT 1",
+                (system_hash, trace),
+            ).fetchone()
+        return Checkpoint(row[0], row[1], bytes(row[2]), row[3]) if row else None
+
+    def record_step(
+        self, applied: AppliedAction | None, state: PlantState, *, payload: bool, checkpoint: tuple[bytes, str] | None
+    ) -> None:
+        """One transaction: the applied action of the last step, the new state, the FMU checkpoint."""
+        statements = []
+        if applied is not None:
+            statements.append(_action_row(applied))
+        statements.append(_state_row(state, payload))
+        if checkpoint is not None:
+            statements.append((
+                "INSERT INTO checkpoints VALUES (?, ?, ?, ?, ?) ON CONFLICT(run_id) DO UPDATE SET "
+                "step = excluded.step, fmu_state = excluded.fmu_state, sensor_state = excluded.sensor_state, "
+                "saved_at = excluded.saved_at",
+                (state.run_id, state.step, checkpoint[0], checkpoint[1], utc_now().isoformat()),
+            ))  # fmt: skip
+        self._write(statements)
+
+    # --- the other producers --------------------------------------------------------------------
+    def add_explanation(self, msg: Explanation) -> None:
+        facts = json.dumps([f.model_dump() for f in msg.facts])
+        self._write([("INSERT INTO explanations (decision_id, step, controller, level, text, facts, source, "
+                      "created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                      (msg.decision_id, msg.step, msg.controller, msg.level, msg.text, facts, msg.source,
+                       msg.sent_at.isoformat()))])  # fmt: skip
+
+    def add_alert(self, msg: Alert) -> None:
+        self._write([("INSERT INTO alerts (alert_id, state, kind, severity, location, message, evidence, "
+                      "prescription, predicted_failure_s, step, time_s, source, created_at) "
+                      "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                      (msg.alert_id, msg.state, msg.kind, msg.severity, msg.location, msg.message,
+                       json.dumps(msg.evidence, default=str), msg.prescription, msg.predicted_failure_s, msg.step,
+                       msg.time_s, msg.source, msg.sent_at.isoformat()))])  # fmt: skip
+
+    def add_config_change(self, doc: ConfigDoc, changes: dict) -> None:
+        self._write([("INSERT OR REPLACE INTO config_changes VALUES (?, ?, ?, ?, ?, ?)",
+                      (doc.version, doc.changed_by, doc.reason, json.dumps(changes, default=str),
+                       doc.config.model_dump_json(), doc.sent_at.isoformat()))])  # fmt: skip
+
+    def add_event(self, msg: AgentEvent) -> None:
+        self._write([("INSERT INTO agent_events (kind, role, agent_id, detail, pid, source, created_at) "
+                      "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                      (msg.kind, msg.role, msg.agent_id, msg.detail, msg.pid, msg.source,
+                       msg.sent_at.isoformat()))])  # fmt: skip
+
+    def reader(self) -> "HistoryReader":
+        return HistoryReader(self.path)
+
+
+def _state_row(state: PlantState, payload: bool) -> tuple[str, Sequence]:
+    summary = state_summary(state)
+    columns = ("run_id", "step", "time_s", "sent_at", *STATE_FIELDS, "faults_active", "payload")
+    values = (state.run_id, state.step, state.time_s, state.sent_at.isoformat(), *(summary[f] for f in STATE_FIELDS),
+              int(state.faults_active), state.model_dump_json() if payload else None)  # fmt: skip
+    marks = ", ".join("?" * len(columns))
+    return f"INSERT OR REPLACE INTO plant_states ({', '.join(columns)}) VALUES ({marks})", values
+
+
+def _action_row(a: AppliedAction) -> tuple[str, Sequence]:
+    clamps = json.dumps([c.model_dump() for c in a.clamps])
+    return ("INSERT OR REPLACE INTO actions VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (a.run_id, a.step, a.time_s, a.decision_id, a.source_controller, a.source_version, int(a.fallback),
+             a.fallback_reason, a.rejected_reason, len(a.clamps), clamps, a.latency_ms, a.late_ms,
+             a.sent_at.isoformat(), a.action.model_dump_json()))  # fmt: skip
+
+
+class HistoryReader:
+    """Read-only queries over a history file (the UI's data source)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(f"history file not found: {self.path} (the Sensor creates it)")
+        self._conn = _connect(self.path, readonly=True)
+        self._lock = threading.Lock()
+
+    def close(self) -> None:
+        self._conn.close()
+
+    def _rows(self, sql: str, params: Sequence = ()) -> list[dict]:
+        with self._lock:
+            return [dict(r) for r in self._conn.execute(sql, params).fetchall()]
+
+    def runs(self) -> list[dict]:
+        """All runs, newest first."""
+        return self._rows("SELECT * FROM runs ORDER BY started_at DESC")
+
+    def latest_run_id(self) -> str | None:
+        rows = self._rows("SELECT run_id FROM runs ORDER BY started_at DESC LIMIT 1")
+        return rows[0]["run_id"] if rows else None
+
+    def latest_state(self, run_id: str | None = None) -> PlantState | None:
+        """The newest plant state with its full payload."""
+        run_id = run_id or self.latest_run_id()
+        rows = self._rows("SELECT payload FROM plant_states WHERE run_id = ? AND payload IS NOT NULL "
+                          "ORDER BY step DESC LIMIT 1", (run_id,))  # fmt: skip
+        return PlantState.model_validate_json(rows[0]["payload"]) if rows else None
+
+    def state_at(self, step: int, run_id: str | None = None) -> PlantState | None:
+        """The plant state of `step` with its full payload (None if not stored with one)."""
+        run_id = run_id or self.latest_run_id()
+        rows = self._rows("SELECT payload FROM plant_states WHERE run_id = ? AND step = ? AND payload IS NOT NULL",
+                          (run_id, step))  # fmt: skip
+        return PlantState.model_validate_json(rows[0]["payload"]) if rows else None
+
+    def states(
+        self, start_step: int = 0, end_step: int | None = None, fields: Sequence[str] = STATE_FIELDS,
+        run_id: str | None = None, every: int = 1, limit: int = 10_000,
+    ) -> list[dict]:  # fmt: skip
+        """Summary rows (step, time_s and `fields`) of steps in [start_step, end_step], every `every`-th."""
+        unknown = [f for f in fields if f not in STATE_FIELDS]
+        if unknown:
+            raise ValueError(f"unknown state field(s) {unknown}; known: {', '.join(STATE_FIELDS)}")
+        if every < 1 or limit < 1:
+            raise ValueError("`every` and `limit` must be >= 1")
+        run_id = run_id or self.latest_run_id()
+        end = end_step if end_step is not None else 2**62
+        cols = ", ".join(("step", "time_s", *fields))
+        return self._rows(f"SELECT {cols} FROM plant_states WHERE run_id = ? AND step BETWEEN ? AND ? "
+                          "AND (step - ?) % ? = 0 ORDER BY step LIMIT ?",
+                          (run_id, start_step, end, start_step, every, limit))  # fmt: skip
+
+    def decisions(self, limit: int = 50, since_step: int | None = None, run_id: str | None = None) -> list[dict]:
+        """Applied actions newest first, with source, clamps, fallback and the explanation text if any."""
+        run_id = run_id or self.latest_run_id()
+        rows = self._rows(
+            "SELECT a.*, (SELECT e.text FROM explanations e WHERE e.decision_id = a.decision_id "
+            "ORDER BY e.id DESC LIMIT 1) AS explanation FROM actions a WHERE a.run_id = ? AND a.step >= ? "
+            "ORDER BY a.step DESC LIMIT ?", (run_id, since_step or 0, limit))  # fmt: skip
+        for row in rows:
+            row["clamps"] = json.loads(row["clamps"])
+            row["action"] = json.loads(row["action"])
+            row["fallback"] = bool(row["fallback"])
+        return rows
+
+    def explanations(self, decision_id: str | None = None, limit: int = 50) -> list[dict]:
+        sql, params = "SELECT * FROM explanations", ()
+        if decision_id is not None:
+            sql, params = sql + " WHERE decision_id = ?", (decision_id,)
+        rows = self._rows(sql + " ORDER BY id DESC LIMIT ?", (*params, limit))
+        for row in rows:
+            row["facts"] = json.loads(row["facts"])
+        return rows
+
+    def alerts(self, active_only: bool = False, limit: int = 100) -> list[dict]:
+        """Alert rows newest first; `active_only`: the latest row of each alert id, if it is 'raised'."""
+        if active_only:
+            rows = self._rows("SELECT * FROM alerts WHERE id IN (SELECT MAX(id) FROM alerts GROUP BY alert_id) "
+                              "AND state = 'raised' ORDER BY id DESC LIMIT ?", (limit,))  # fmt: skip
+        else:
+            rows = self._rows("SELECT * FROM alerts ORDER BY id DESC LIMIT ?", (limit,))
+        for row in rows:
+            row["evidence"] = json.loads(row["evidence"])
+        return rows
+
+    def config_changes(self, limit: int = 50) -> list[dict]:
+        rows = self._rows("SELECT * FROM config_changes ORDER BY version DESC LIMIT ?", (limit,))
+        for row in rows:
+            row["changes"], row["config"] = json.loads(row["changes"]), json.loads(row["config"])
+        return rows
+
+    def agent_events(self, limit: int = 100, agent_id: str | None = None) -> list[dict]:
+        if agent_id is None:
+            return self._rows("SELECT * FROM agent_events ORDER BY id DESC LIMIT ?", (limit,))
+        return self._rows("SELECT * FROM agent_events WHERE agent_id = ? ORDER BY id DESC LIMIT ?", (agent_id, limit))
+
+    def step_gaps(self, table: str = "plant_states", run_id: str | None = None) -> list[tuple[int, int]]:
+        """(after, before) pairs of missing step ranges in `table` ('plant_states' or 'actions')."""
+        if table not in ("plant_states", "actions"):
+            raise ValueError(f"`table` must be 'plant_states' or 'actions', got {table!r}")
+        run_id = run_id or self.latest_run_id()
+        steps = [r["step"] for r in self._rows(f"SELECT step FROM {table} WHERE run_id = ? ORDER BY step", (run_id,))]
+        return [(a, b) for a, b in zip(steps, steps[1:]) if b != a + 1]

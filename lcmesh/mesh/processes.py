@@ -1,0 +1,120 @@
+"""Child processes of the mesh (router, agents) with their own logs, started and stopped cleanly.
+
+Children run in a new session (their own process group), so Ctrl-C in a terminal reaches the
+parent only and the parent stops them in order; ``stop`` sends SIGTERM, waits, then SIGKILLs
+the whole group so nothing is left behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class Child:
+    """A started child process and where its output goes."""
+
+    name: str
+    argv: list[str]
+    env: dict[str, str]
+    log_path: Path
+    popen: subprocess.Popen | None = None
+    started_at: float = field(default=0.0)
+
+    @property
+    def pid(self) -> int | None:
+        return self.popen.pid if self.popen else None
+
+    def start(self) -> "Child":
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        log = open(self.log_path, "ab", buffering=0)
+        try:
+            self.popen = subprocess.Popen(self.argv, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                          stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+        finally:
+            log.close()
+        self.started_at = time.monotonic()
+        return self
+
+    def running(self) -> bool:
+        return self.popen is not None and self.popen.poll() is None
+
+    def signal(self, sig: int) -> None:
+        if self.running():
+            try:
+                os.killpg(self.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def terminate(self) -> None:
+        """Ask the child to stop (SIGTERM; SIGCONT first, so a stopped child can handle it)."""
+        self.signal(signal.SIGCONT)
+        self.signal(signal.SIGTERM)
+
+    def stop(self, timeout_s: float = 5.0) -> int | None:
+        """SIGTERM, wait up to `timeout_s`, then SIGKILL the group; the exit code."""
+        if self.popen is None:
+            return None
+        if self.running():
+            self.terminate()
+            try:
+                self.popen.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                pass
+        try:
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        try:
+            return self.popen.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def log_tail(self, n_lines: int = 20) -> str:
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(lines[-n_lines:])
+
+
+def child_env(base: dict[str, str] | None = None, **overrides: str) -> dict[str, str]:
+    """The current environment (or `base`) with ``LCMESH_*`` overrides; unbuffered Python output."""
+    env = dict(os.environ if base is None else base)
+    env.update(overrides)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def router_child(env: dict[str, str], log_path: Path, name: str = "router") -> Child:
+    return Child(name, [sys.executable, "-m", "lcmesh.mesh.router"], env, log_path)
+
+
+def agent_child(role: str, agent_id: str, env: dict[str, str], log_path: Path) -> Child:
+    return Child(agent_id, [sys.executable, "-m", "lcmesh.mesh.agents", role, "--id", agent_id], env, log_path)
+
+
+def wait_for_port(host: str, port: int, timeout_s: float = 10.0) -> bool:
+    """True once something accepts TCP connections on host:port."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, port)) == 0:
+                return True
+        time.sleep(0.05)
+    return False
+
+
+def tcp_host_port(endpoint: str) -> tuple[str, int]:
+    """('127.0.0.1', 7447) from 'tcp/127.0.0.1:7447'."""
+    address = endpoint.split("/", 1)[1]
+    host, _, port = address.rpartition(":")
+    return host.strip("[]"), int(port)

@@ -1,0 +1,185 @@
+"""Process settings of the mesh (``LCMESH_`` environment variables) and one config model per agent.
+
+Every agent process reads the same ``MeshSettings``: which site it serves, where the router is,
+which plant and trace the twin runs, where history goes. Per-agent knobs live in nested models,
+set from the environment with a double underscore: ``LCMESH_SENSOR__DEADLINE_FRACTION=0.5``.
+Lists accept JSON or commas: ``LCMESH_ROUTER_ENDPOINTS=tcp/10.0.0.2:7447,tcp/10.0.0.3:7447``.
+
+What operators change at run time (controller, guardrail limits, LLM settings, speed factor) is
+not here: the Configuration agent holds it (``lcmesh.mesh.messages.MeshConfig``); these settings
+only seed its first version.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+
+
+def _split_list(value: object) -> object:
+    if isinstance(value, str):
+        text = value.strip()
+        if text.startswith("["):
+            import json
+
+            return json.loads(text)
+        return [part.strip() for part in text.split(",") if part.strip()]
+    return value
+
+
+def _check_endpoints(field: str, endpoints: list[str]) -> list[str]:
+    for endpoint in endpoints:
+        if not _ENDPOINT.match(endpoint):
+            raise ValueError(
+                f"`{field}` entries must look like 'tcp/HOST:PORT' (or udp/, tls/, quic/, ws/), got {endpoint!r}"
+            )
+    return endpoints
+
+
+EndpointList = Annotated[list[str], NoDecode]
+
+
+class _Component(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class SensorConfig(_Component):
+    """The Sensor agent: owns the twin, applies actions."""
+
+    deadline_fraction: float = Field(0.8, gt=0, le=1, description="wait this share of a period for a proposal")
+    hold_periods: int = Field(2, ge=0, description="missed periods that hold the last safe action before G36")
+    spinup_hours: float = Field(1.0, ge=0, description="twin spin-up at the trace's first row before step 0")
+    checkpoint_every_steps: int = Field(1, ge=1, description="serialized FMU state saved with the step's rows")
+    payload_every_steps: int | None = Field(
+        None, ge=1, description="full state JSON in history every N steps (None: 1, or 40 above 5,000 values)"
+    )
+    resume: bool = Field(True, description="continue an unfinished run of the same system and trace from history")
+    loop: str = Field("plant", pattern=NAME_PATTERN, description="control loop whose proposals it applies")
+
+
+class ControlConfig(_Component):
+    """The Control agent: runs the configured policy."""
+
+    loop: str = Field("plant", pattern=NAME_PATTERN)
+    explain: bool = Field(True, description="publish an explanation (facts + text) for every decision")
+    inline: bool = Field(True, description="decide in the bus callback (lowest latency); false: in a worker "
+                         "thread with a one-item mailbox, for policies slower than a control period")
+
+
+class MaintenanceConfig(_Component):
+    """The Maintenance agent: wraps the toolbox's fault detector."""
+
+    clear_after_updates: int = Field(3, ge=1, description="a finding must be absent this many updates to clear")
+    detector_poll_s: float = Field(5.0, gt=0, description="retry importing the detector this often until it exists")
+
+
+class MonitorConfig(_Component):
+    """The Agent Monitor."""
+
+    report_period_s: float = Field(1.0, gt=0)
+    stale_after_s: float = Field(3.0, gt=0, description="alive but no stats this long: reported as hung")
+    cpu_high_pct: float = Field(90.0, gt=0)
+    rss_high_bytes: int = Field(1 << 30, gt=0)
+
+
+class ConfigurationConfig(_Component):
+    """The Configuration agent."""
+
+    store_path: Path | None = Field(None, description="persisted config JSON (default: DATA_DIR/config.json)")
+
+
+class OrchestrationConfig(_Component):
+    """The Orchestration agent: starts and supervises the other agents."""
+
+    roles: list[str] = ["configuration", "sensor", "control", "maintenance", "monitor", "ui"]
+    supervise: bool = Field(True, description="start the roles as child processes and restart them")
+    hung_after_s: float = Field(2.0, gt=0, description="alive but silent (no stats) this long: killed, restarted")
+    backoff_initial_s: float = Field(0.2, ge=0)
+    backoff_max_s: float = Field(10.0, gt=0)
+    healthy_after_s: float = Field(30.0, gt=0, description="up this long resets the backoff")
+    stop_timeout_s: float = Field(5.0, gt=0)
+
+
+class MeshSettings(BaseSettings):
+    """Settings every mesh process reads from ``LCMESH_*`` variables."""
+
+    model_config = SettingsConfigDict(env_prefix="LCMESH_", env_nested_delimiter="__", extra="ignore")
+
+    site: str = Field("default", pattern=NAME_PATTERN, description="key prefix lcmesh/{site}/...")
+    router_endpoints: EndpointList = Field([DEFAULT_ROUTER], description="routers a client connects to")
+    listen_endpoints: EndpointList = Field([DEFAULT_ROUTER], description="where `lcmesh router` listens")
+    router_peers: EndpointList = Field([], description="other routers a router links to (scale-out)")
+    lease_ms: int = Field(1500, ge=200, le=60_000, description="a silent session is dropped after this")
+    connect_timeout_s: float = Field(30.0, ge=0, description="agents retry the router this long, then exit")
+    system: str = "lcopt-5"
+    trace: str = "frontier-2024-04-07"
+    wet_bulb_offset_k: float = Field(15.0, ge=-50, le=50)
+    speed_factor: float = Field(60.0, gt=0, le=100_000, description="simulated seconds per wall second")
+    controller: str = "tree"
+    data_dir: Path = Path("runs/mesh")
+    history_path: Path | None = None
+    ui_host: str = "127.0.0.1"
+    ui_port: int = Field(8000, ge=1, le=65535)
+    api_token_file: Path | None = None
+    stats_period_s: float = Field(0.5, gt=0, description="agents publish their stats this often")
+    log_level: str = "INFO"
+
+    sensor: SensorConfig = SensorConfig()
+    control: ControlConfig = ControlConfig()
+    maintenance: MaintenanceConfig = MaintenanceConfig()
+    monitor: MonitorConfig = MonitorConfig()
+    configuration: ConfigurationConfig = ConfigurationConfig()
+    orchestration: OrchestrationConfig = OrchestrationConfig()
+
+    @field_validator("router_endpoints", "listen_endpoints", "router_peers", mode="before")
+    @classmethod
+    def _lists(cls, value: object) -> object:
+        return _split_list(value)
+
+    @model_validator(mode="after")
+    def _endpoints(self) -> "MeshSettings":
+        _check_endpoints("router_endpoints", self.router_endpoints)
+        _check_endpoints("listen_endpoints", self.listen_endpoints)
+        _check_endpoints("router_peers", self.router_peers)
+        if not self.router_endpoints:
+            raise ValueError("`router_endpoints` must name at least one router, e.g. 'tcp/127.0.0.1:7447'")
+        return self
+
+    @property
+    def history_file(self) -> Path:
+        """The SQLite history file (``history_path``, else ``data_dir/history.sqlite``)."""
+        return self.history_path or self.data_dir / "history.sqlite"
+
+    @property
+    def log_dir(self) -> Path:
+        return self.data_dir / "logs"
+
+    def to_env(self) -> dict[str, str]:
+        """These settings as ``LCMESH_*`` variables, for child processes (nested configs as JSON)."""
+        env = {}
+        for name, value in self:
+            if value is None:
+                continue
+            if isinstance(value, BaseModel):
+                text = value.model_dump_json()
+            elif isinstance(value, list):
+                text = ",".join(value)
+            elif isinstance(value, bool):
+                text = "true" if value else "false"
+            else:
+                text = str(value)
+            env[f"LCMESH_{name.upper()}"] = text
+        return env
+
+
+def endpoint_env(endpoints: list[str]) -> str:
+    """The value of an endpoint-list variable for a child process's environment."""
+    return ",".join(endpoints)

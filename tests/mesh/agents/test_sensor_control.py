@@ -1,0 +1,162 @@
+"""Sensor and Control agents in-process, on a real router and a real FMU, with history in SQLite."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lcmesh.mesh import keys
+from lcmesh.mesh.agents.control import ControlAgent
+from lcmesh.mesh.agents.sensor import SensorAgent
+from lcmesh.mesh.bus import BusError
+from lcmesh.mesh.history import HistoryReader
+from lcmesh.mesh.messages import ActionModel, CommandReply, FaultRequest, PlantState, Proposal
+from tests.mesh.conftest import wait_until
+
+
+def test_proposals_are_applied_with_latency_audit_and_explanations(start_agent, mesh_settings):
+    start_agent(ControlAgent)
+    sensor = start_agent(SensorAgent)
+    assert wait_until(lambda: sensor.tally["proposals_applied"] >= 15, 20)
+    history = HistoryReader(mesh_settings.history_file)
+    decisions = [d for d in history.decisions(limit=200) if not d["fallback"]]
+    assert len(decisions) >= 15
+    d = decisions[0]
+    assert d["source_controller"] == "g36" and d["source_version"] == "1"
+    assert d["decision_id"] and 0 < d["latency_ms"] < 1000
+    assert d["explanation"] and "EXPLANATION" in d["explanation"]
+    explained = history.explanations(decision_id=d["decision_id"])
+    assert explained and any(f["name"] == "cabinet" for f in explained[0]["facts"])
+    assert history.step_gaps("plant_states") == [] and history.step_gaps("actions") == []
+
+
+def test_without_proposals_the_sensor_holds_then_falls_back_to_g36(start_agent, mesh_settings):
+    sensor = start_agent(SensorAgent)
+    assert wait_until(lambda: sensor.tally["steps"] >= 6, 20)
+    rows = sorted(HistoryReader(mesh_settings.history_file).decisions(limit=50), key=lambda r: r["step"])
+    hold = mesh_settings.sensor.hold_periods
+    assert [r["source_controller"] for r in rows[: hold + 2]] == ["hold"] * hold + ["g36", "g36"]
+    assert all(r["fallback"] and "no proposal" in r["fallback_reason"] for r in rows)
+    assert [r["step"] for r in rows] == list(range(rows[0]["step"], rows[0]["step"] + len(rows)))
+
+
+def _answer_with(client, site, make_action):
+    """A stand-in controller on the bus: answers every plant state with `make_action(state)`."""
+
+    def on_state(state: PlantState):
+        action = make_action(state)
+        client.publish(keys.proposal(site), Proposal(source="tester", step=state.step, state_id=state.id,
+                                                     controller="test", controller_version="0", action=action))
+
+    client.subscribe(keys.plant_state(site), PlantState, on_state)
+
+
+def test_out_of_range_proposals_are_clamped_and_malformed_ones_rejected(start_agent, client, mesh_settings, lcopt5):
+    sensor = start_agent(SensorAgent)
+    C, B, N = lcopt5.cabinets.count, lcopt5.cabinets.branches, lcopt5.towers.count
+
+    def action(state):
+        if state.step % 2:  # malformed: two branches instead of three
+            return ActionModel(supply_temp_setpoint_k=[300.0] * C, dp_setpoint_pa=[190e3] * C,
+                               valve_fractions=[[0.5, 0.5]] * C, lw_setpoint_k=[300.0] * N)  # fmt: skip
+        return ActionModel(supply_temp_setpoint_k=[400.0] * C, dp_setpoint_pa=[190e3] * C,
+                           valve_fractions=[[1 / B] * B] * C, lw_setpoint_k=[300.0] * N)  # fmt: skip
+
+    _answer_with(client, mesh_settings.site, action)
+    assert wait_until(lambda: sensor.tally["rejected"] >= 3 and sensor.tally["proposals_applied"] >= 3, 20)
+    rows = HistoryReader(mesh_settings.history_file).decisions(limit=100)
+    clamped = [r for r in rows if r["source_controller"] == "test"]
+    assert clamped and all(not r["fallback"] for r in clamped)
+    assert any(c["field"] == "supply_temp_setpoint_k" and c["proposed"] == 400.0 for c in clamped[0]["clamps"])
+    rejected = [r for r in rows if r["rejected_reason"]]
+    assert rejected and all(r["fallback"] for r in rejected)
+    assert "`valve_fractions` must have shape (5, 3)" in rejected[0]["rejected_reason"]
+
+
+def test_late_joiners_get_the_latest_state(start_agent, client, mesh_settings):
+    sensor = start_agent(SensorAgent)
+    assert wait_until(lambda: sensor.tally["steps"] >= 2, 20)
+    got = []
+    client.subscribe(keys.plant_state(mesh_settings.site), PlantState, got.append, latest=True)
+    assert got and got[0].system == "lcopt-5" and got[0].step >= 1
+
+
+def test_fault_injection_status_and_toolbox_queryables(start_agent, client, mesh_settings):
+    sensor = start_agent(SensorAgent)
+    assert wait_until(lambda: sensor.tally["steps"] >= 1, 20)
+    key = keys.cmd(mesh_settings.site, "sensor", "inject_fault")
+    reply = client.request(key, CommandReply, FaultRequest(kind="pump_degradation", cabinet=2, value=0.5))
+    assert reply.ok and reply.data["pump_degradation"][2] == 0.5 and reply.data["active"]
+    assert wait_until(lambda: sensor.twin.plant.faults.active, 5)
+    with pytest.raises(BusError, match=r"`cabinet` must be an index in \[0, 4\]"):
+        client.request(key, CommandReply, FaultRequest(kind="valve_stuck", cabinet=9))
+    with pytest.raises(BusError, match="kind"):
+        client.request(key, CommandReply, b'{"kind": "meltdown"}')
+    status = client.request(keys.cmd(mesh_settings.site, "sensor", "status"), CommandReply)
+    assert status.data["step"] >= 1 and status.data["run_id"] == sensor.twin.run_id
+    registry = pytest.importorskip("lcmesh.mesh.tools.registry")
+    assert wait_until(lambda: sensor._tools_declared, 10)
+    for name in registry.TOOLS:
+        assert client.query(keys.tool(mesh_settings.site, name), b"{}", timeout_s=5.0), name
+    replies = client.query(keys.tool(mesh_settings.site, "whatif"), b'{"supply_temp_setpoint_delta_k": -2, "steps": 4}',
+                           timeout_s=10.0)  # fmt: skip
+    assert replies and replies[0].ok, replies
+    assert b"predicted" in replies[0].payload
+
+
+def test_a_restarted_sensor_resumes_its_run_without_a_gap(start_agent, mesh_settings):
+    first = start_agent(SensorAgent)
+    assert wait_until(lambda: first.tally["steps"] >= 5, 20)
+    first.stop()  # (the SIGKILL case: tests/mesh/test_faults.py)
+    history = HistoryReader(mesh_settings.history_file)
+    run_id = history.latest_run_id()
+    step = max(r["step"] for r in history.states(fields=()))
+    again = start_agent(SensorAgent, agent_id="sensor")
+    assert again.twin.run_id == run_id and again.twin.step == step
+    assert wait_until(lambda: again.tally["steps"] >= 3, 20)
+    assert history.step_gaps("plant_states") == [] and history.step_gaps("actions") == []
+    states = history.states(fields=("blade_temp_max_k",))
+    assert np.all(np.isfinite([s["blade_temp_max_k"] for s in states]))
+
+
+class SlowController:
+    """G36 that needs 2.5 control periods per decision (as an LLM might)."""
+
+    name, version = "slow-g36", "0"
+
+    def __init__(self, system, period_s: float = 0.05):
+        from lcmesh.twin.controllers.g36 import G36Controller
+
+        self._inner, self._period_s = G36Controller(system), period_s
+
+    def reset(self) -> None:
+        self._inner.reset()
+
+    def act(self, obs):
+        import time
+
+        time.sleep(2.5 * self._period_s)
+        return self._inner.act(obs)
+
+
+def test_a_slow_policy_in_worker_mode_repeats_its_last_action_instead_of_a_fallback(start_agent, mesh_settings,
+                                                                                      monkeypatch):  # fmt: skip
+    from lcmesh.twin import controllers
+
+    monkeypatch.setitem(controllers.REGISTRY, "slow-g36", f"{__name__}:SlowController")
+    settings = mesh_settings.model_copy(update={"controller": "slow-g36",
+                                                "control": mesh_settings.control.model_copy(update={"inline": False})})
+    control = start_agent(ControlAgent, settings)
+    sensor = start_agent(SensorAgent, settings)
+    history = HistoryReader(settings.history_file)
+
+    def since_first_decision():
+        rows = sorted(history.decisions(limit=200), key=lambda r: r["step"])
+        first = next((i for i, r in enumerate(rows) if r["source_controller"] == "slow-g36"), len(rows))
+        return rows[first:]
+
+    assert wait_until(lambda: len(since_first_decision()) >= 10, 30), control.tally
+    later = since_first_decision()
+    assert control.tally["repeats"] >= 4, control.tally
+    assert not any(r["fallback"] for r in later), [r["source_controller"] for r in later]
+    assert sensor.tally["proposals_applied"] >= 10

@@ -1,0 +1,47 @@
+"""The mesh commands' errors and the healthcheck (`lcmesh demo` end to end: test_faults.py)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from lcmesh.cli import app
+from lcmesh.mesh import keys
+from lcmesh.mesh.bus import Bus
+from tests.mesh.conftest import free_port, make_settings
+
+LCMESH = str(Path(sys.executable).parent / "lcmesh")
+
+
+def test_agent_command_errors_name_what_is_valid(tmp_path, monkeypatch):
+    runner = CliRunner()
+    result = runner.invoke(app, ["agent", "sensr"])
+    assert result.exit_code == 2 and "did you mean 'sensor'" in result.output
+    monkeypatch.setenv("LCMESH_ROUTER_ENDPOINTS", f"tcp/127.0.0.1:{free_port()}")
+    monkeypatch.setenv("LCMESH_CONNECT_TIMEOUT_S", "0.3")
+    result = runner.invoke(app, ["agent", "sensor", "--check"])
+    assert result.exit_code == 2 and "could not reach a router" in result.output
+    result = runner.invoke(app, ["router", "--listen", "localhost:7447"])
+    assert result.exit_code == 2 and "`listen_endpoints`" in result.output
+
+
+def test_agent_check_sees_a_live_agent(tmp_path):
+    port = free_port()
+    settings = make_settings(tmp_path, port, site="default")
+    router = Bus.open_router(settings)
+    agent = Bus.connect(settings, "sensor")
+    try:
+        agent.declare_token(keys.alive("default", "sensor", "sensor"))
+        env = {**os.environ, "LCMESH_ROUTER_ENDPOINTS": f"tcp/127.0.0.1:{port}"}
+        ok = subprocess.run([LCMESH, "agent", "sensor", "--check"], env=env, capture_output=True, text=True, timeout=30)
+        missing = subprocess.run([LCMESH, "agent", "control", "--check"], env=env, capture_output=True, text=True,
+                                 timeout=30)  # fmt: skip
+    finally:
+        agent.close()
+        router.close()
+    assert ok.returncode == 0 and "alive/sensor/sensor" in ok.stderr + ok.stdout
+    assert missing.returncode == 1

@@ -1,0 +1,81 @@
+"""History in a real SQLite file: one transaction per step, resume checkpoints, the reader API."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+
+import pytest
+
+from lcmesh.mesh.history import STATE_FIELDS, HistoryReader, HistoryWriter
+from lcmesh.mesh.messages import ActionModel, AgentEvent, Alert, AppliedAction, ConfigDoc, MeshConfig, plant_state_from_outputs
+
+
+def _state(plant, system, step, run_id="run1"):
+    return plant_state_from_outputs(plant.out, source="sensor", system=system, run_id=run_id, step=step,
+                                    time_s=15.0 * step, wet_bulb_k=290.0, blade_power_w=[1e4] * system.n_blade_groups,
+                                    period_s=0.25)  # fmt: skip
+
+
+def _applied(plant, step, run_id="run1", fallback=False):
+    return AppliedAction(source="sensor", run_id=run_id, step=step, time_s=15.0 * step, decision_id=f"d{step}",
+                         source_controller="g36", source_version="1", action=ActionModel.from_action(plant.default_action()),
+                         fallback=fallback, fallback_reason="no proposal" if fallback else None, latency_ms=1.5)  # fmt: skip
+
+
+def test_steps_checkpoints_and_the_reader(tmp_path, plant, lcopt5):
+    w = HistoryWriter(tmp_path / "h.sqlite")
+    w.start_run("run1", lcopt5.name, lcopt5.content_hash(), "trace-x")
+    w.record_step(None, _state(plant, lcopt5, 0), payload=True, checkpoint=(b"fmu0", '{"action": {}}'))
+    for k in range(3):
+        w.record_step(_applied(plant, k, fallback=k == 1), _state(plant, lcopt5, k + 1), payload=k % 2 == 0,
+                      checkpoint=(f"fmu{k + 1}".encode(), "{}"))  # fmt: skip
+    ckpt = w.resumable(lcopt5.content_hash(), "trace-x")
+    assert ckpt.run_id == "run1" and ckpt.step == 3 and ckpt.fmu_state == b"fmu3"
+    assert w.resumable(lcopt5.content_hash(), "other-trace") is None
+    r = HistoryReader(tmp_path / "h.sqlite")
+    assert r.latest_run_id() == "run1" and r.step_gaps() == [] and r.step_gaps("actions") == []
+    rows = r.states(fields=("blade_temp_max_k", "it_power_w"))
+    assert [row["step"] for row in rows] == [0, 1, 2, 3] and set(rows[0]) == {"step", "time_s", "blade_temp_max_k", "it_power_w"}
+    assert rows[1]["blade_temp_max_k"] == pytest.approx(float(plant.out["blade_temp_k"].max()))
+    assert [row["step"] for row in r.states(start_step=1, every=2)] == [1, 3]
+    assert r.latest_state().step == 3 and r.latest_state().outputs.keys() == plant.out.keys()
+    decisions = r.decisions()
+    assert [d["step"] for d in decisions] == [2, 1, 0] and decisions[1]["fallback"] is True
+    with pytest.raises(ValueError, match="unknown state field"):
+        r.states(fields=("blade_temp",))
+    assert w.end_open_runs() == 1
+    assert w.resumable(lcopt5.content_hash(), "trace-x") is None, "a finished run is not resumed"
+    assert r.runs()[0]["ended_at"] is not None
+    assert set(STATE_FIELDS) <= {c[1] for c in sqlite3.connect(tmp_path / "h.sqlite").execute("PRAGMA table_info(plant_states)")}
+
+
+def test_alerts_events_config_and_concurrent_writers(tmp_path):
+    path = tmp_path / "h.sqlite"
+    writers = [HistoryWriter(path) for _ in range(3)]
+
+    def write(w, n):
+        for i in range(40):
+            w.add_event(AgentEvent(source="o", kind="started", role="sensor", agent_id=f"a{n}", detail=str(i)))
+
+    threads = [threading.Thread(target=write, args=(w, n)) for n, w in enumerate(writers)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    w = writers[0]
+    raised = Alert(source="m", alert_id="al1", state="raised", kind="pump_degradation", location="cabinet_2")
+    w.add_alert(raised)
+    w.add_alert(Alert(source="m", alert_id="al2", state="raised", kind="cell_out", location="tower_0/cell_1"))
+    w.add_alert(raised.model_copy(update={"state": "cleared"}))
+    w.add_config_change(ConfigDoc(source="c", version=2, config=MeshConfig(), changed_by="op"), {"speed_factor": [60, 120]})
+    r = HistoryReader(path)
+    assert len(r.agent_events(limit=1000)) == 120 and len(r.agent_events(agent_id="a1", limit=1000)) == 40
+    assert [a["alert_id"] for a in r.alerts(active_only=True)] == ["al2"]
+    assert len(r.alerts()) == 3
+    assert r.config_changes()[0]["changes"] == {"speed_factor": [60, 120]}
+
+
+def test_reader_needs_an_existing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="history file not found"):
+        HistoryReader(tmp_path / "missing.sqlite")
