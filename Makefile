@@ -1,5 +1,5 @@
 # lc-mesh: two targets do all set-up on a fresh machine.
-#   make demo   set up, then run the demo (today: a 24 h twin run of lcopt-5 on the Frontier day)
+#   make demo   set up, then run the demo mesh (router + agents + UI on http://127.0.0.1:8000; Ctrl-C stops)
 #   make test   set up, then run the default (fast) test tier
 PYTHON ?= python3
 VENV ?= .venv
@@ -31,6 +31,12 @@ test-slow: setup
 
 bench: setup
 	$(VENV)/bin/lcmesh bench twin --json runs/bench/twin.json --markdown BENCHMARKS.md
+	$(VENV)/bin/lcmesh bench control --json runs/bench/control.json --markdown BENCHMARKS.md
+	$(VENV)/bin/lcmesh bench maintenance --json runs/bench/maintenance.json --markdown BENCHMARKS.md
+	$(VENV)/bin/lcmesh bench mesh --json runs/bench/mesh.json --markdown BENCHMARKS.md
+	$(VENV)/bin/lcmesh bench explain --json runs/bench/explain.json --markdown BENCHMARKS.md
+	$(VENV)/bin/lcmesh bench api --json runs/bench/api.json --markdown BENCHMARKS.md
+	$(VENV)/bin/lcmesh bench llm --json runs/bench/llm.json --markdown BENCHMARKS.md
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,45 @@
+"""Settings of the UI agent (``LCMESH_UI_*`` variables; host and port are the mesh's ``LCMESH_UI_HOST/PORT``).
+
+The API token is a secret: it comes from ``LCMESH_API_TOKEN`` or the file named by
+``LCMESH_API_TOKEN_FILE`` (``MeshSettings.api_token_file``), never from a config file
+(lcmesh.mesh.agents.ui.security).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+
+class UiSettings(BaseSettings):
+    """Knobs of the REST API, the live page and the chat."""
+
+    model_config = SettingsConfigDict(env_prefix="LCMESH_UI_", extra="ignore", populate_by_name=True)
+
+    api_token: SecretStr | None = Field(None, validation_alias="LCMESH_API_TOKEN", description="bearer token of writes")
+    create_token_file: bool = Field(
+        False, description="create LCMESH_API_TOKEN_FILE with a random token if it does not exist (compose)"
+    )
+    cors_origins: Annotated[list[str], NoDecode] = Field(
+        [], description="extra origins allowed to call the API from a browser (the page's own origin always is)"
+    )
+    chat_rate_per_min: float = Field(30.0, gt=0, le=100_000, description="chat requests per minute and client")
+    chat_burst: int = Field(10, ge=1, le=100_000, description="chat requests a client may send at once")
+    chat_max_chars: int = Field(500, ge=10, le=10_000)
+    phraser: Literal["template", "llm"] = Field(
+        "template", description="who phrases chat answers: the deterministic template, or the LLM backend if present"
+    )
+    sse_state_hz: float = Field(4.0, gt=0, le=100, description="plant states per second sent to each live page")
+    sse_queue: int = Field(256, ge=8, description="events buffered per live client before the oldest are dropped")
+    decisions_kept: int = Field(500, ge=10, description="recent decisions and explanations held in memory")
+    history_max_points: int = Field(5000, ge=10, le=200_000, description="most rows one /api/history answer holds")
+    bus_timeout_s: float = Field(3.0, gt=0, le=60, description="wait this long for a queryable (config, tools)")
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split(cls, value: object) -> object:
+        if isinstance(value, str):
+            return [part.strip() for part in value.split(",") if part.strip()]
+        return value

@@ -1,0 +1,161 @@
+"""Authenticated writes: configuration changes, controller / mode switch, manual setpoints.
+
+All three go to the Configuration agent's ``config/all`` queryable as a ``ConfigUpdate``; it
+validates (pydantic, the controller registry, the guardrails against the plant), versions,
+persists and publishes. The Sensor applies the result through the guardrails, which clamp and
+report; ``/api/control/setpoints`` previews those clamps in its answer.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from lcmesh.mesh.agents.ui.answers import NotReady
+from lcmesh.mesh.agents.ui.schemas import ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest
+from lcmesh.mesh.agents.ui.security import token_matches
+from lcmesh.mesh.agents.ui.views import c, psi
+from lcmesh.mesh.messages import ActionModel
+from lcmesh.mesh.tools.guardrails import apply_guardrails
+from lcmesh.twin.plant import PlantAction
+from lcmesh.twin.system import PSI_TO_PA
+
+router = APIRouter()
+bearer = HTTPBearer(auto_error=False, description="the API token (LCMESH_API_TOKEN or LCMESH_API_TOKEN_FILE)")
+AUTH = {401: {"description": "missing or wrong bearer token"}, 422: {"description": "invalid; `detail` names the field"},
+        503: {"description": "the Configuration agent does not answer"}}  # fmt: skip
+K0 = 273.15
+
+
+def require_token(request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> str:
+    """The caller's address if it sent the API token; 401 otherwise."""
+    header = f"Bearer {credentials.credentials}" if credentials else None
+    if not token_matches(request.app.state.ctx.token.value, header):
+        raise HTTPException(401, "this endpoint needs `Authorization: Bearer <token>` with the API token",
+                            headers={"WWW-Authenticate": "Bearer"})  # fmt: skip
+    return request.client.host if request.client else "unknown"
+
+
+Caller = Annotated[str, Depends(require_token)]
+
+
+def _by(caller: str) -> str:
+    return f"api@{caller}"[:64]
+
+
+@router.put("/api/config", tags=["write"], responses={**AUTH, 409: {"description": "`expected_version` is stale"}})
+def put_config(request: Request, body: ConfigChange, caller: Caller) -> dict:
+    """Change the configuration (a partial document; nested sections merge). Returns the new version."""
+    doc = request.app.state.ctx.require_gateway().update_config(body.changes, _by(caller), body.reason,
+                                                                body.expected_version)  # fmt: skip
+    return doc.model_dump(mode="json")
+
+
+def _answer(doc, detail: str, clamps: list | None = None) -> ControlAnswer:
+    manual = doc.config.manual_action
+    view = None
+    if manual is not None:
+        view = {"supply_temp_setpoint_c": [c(v) for v in manual.supply_temp_setpoint_k],
+                "dp_setpoint_psi": [psi(v) for v in manual.dp_setpoint_pa],
+                "valve_fractions": [[round(v, 4) for v in row] for row in manual.valve_fractions],
+                "lw_setpoint_c": [c(v) for v in manual.lw_setpoint_k]}  # fmt: skip
+    return ControlAnswer(ok=True, config_version=doc.version, controller=doc.config.controller, mode=doc.config.mode,
+                         manual_action=view, clamps_expected=clamps or [], detail=detail)  # fmt: skip
+
+
+@router.post("/api/control/mode", response_model=ControlAnswer, tags=["write"], responses=AUTH)
+def control_mode(request: Request, body: ModeRequest, caller: Caller) -> ControlAnswer:
+    """Switch the controller and/or auto / manual; manual without setpoints holds the action applied now."""
+    ctx = request.app.state.ctx
+    changes: dict = {}
+    if body.controller is not None:
+        changes["controller"] = body.controller
+    if body.mode is not None:
+        changes["mode"] = body.mode
+        if body.mode == "manual":
+            applied = ctx.store.latest_applied()
+            if applied is None:
+                raise NotReady("no applied action yet to hold; send setpoints to /api/control/setpoints instead")
+            changes["manual_action"] = applied.action.model_dump()
+    doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "controller switch from the API")
+    return _answer(doc, f"controller {doc.config.controller}, mode {doc.config.mode}")
+
+
+def _per_item(name: str, value, count: int, selected: list[int], current: np.ndarray, convert) -> np.ndarray:
+    out = current.copy()
+    if isinstance(value, list):
+        if len(value) != count:
+            raise HTTPException(422, f"`{name}` must hold {count} values (one per item) or one number, got {len(value)}")
+        return np.asarray([convert(v) for v in value], dtype=float)
+    out[selected] = convert(value)
+    return out
+
+
+def _valves(value, selected: list[int], current: np.ndarray) -> np.ndarray:
+    C, B = current.shape
+    rows = np.asarray(value, dtype=float)
+    if rows.ndim == 1:
+        if rows.size != B:
+            raise HTTPException(422, f"`valve_fractions` must hold {B} fractions (one per branch), got {rows.size}")
+        out = current.copy()
+        out[selected] = rows
+    elif rows.shape == (C, B):
+        out = rows
+    else:
+        raise HTTPException(422, f"`valve_fractions` must be {B} fractions or {C} rows of {B}, got shape {rows.shape}")
+    bad = [i + 1 for i, row in enumerate(out) if np.any(row < 0) or abs(row.sum() - 1.0) > 1e-3]
+    if bad:
+        raise HTTPException(422, f"`valve_fractions`: each row must be >= 0 and sum to 1; cabinet(s) {bad} do not")
+    return out
+
+
+@router.post("/api/control/setpoints", response_model=ControlAnswer, tags=["write"], responses=AUTH)
+def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) -> ControlAnswer:
+    """Manual setpoints (°C, psi, fractions) on top of the action applied now; switches to manual mode.
+
+    The guardrails still apply at the Sensor: values outside the limits are clamped there and the
+    clamps recorded with every step; `clamps_expected` previews them against the current limits.
+    """
+    ctx = request.app.state.ctx
+    system = ctx.system
+    applied = ctx.store.latest_applied()
+    state = ctx.store.state
+    if applied is None or state is None:
+        raise NotReady("no applied action yet: the current setpoints are not known")
+    C, N = system.cabinets.count, system.towers.count
+    cabinets = body.cabinets or list(range(1, C + 1))
+    wrong = [i for i in cabinets if not 1 <= i <= C]
+    if wrong:
+        raise HTTPException(404, f"cabinet(s) {wrong} do not exist; {system.name} has cabinets 1..{C}")
+    selected = [i - 1 for i in cabinets]
+    base = applied.action.to_action()
+    to_k = lambda v: float(v) + K0  # noqa: E731
+    candidate = PlantAction(
+        _per_item("supply_temp_setpoint_c", body.supply_temp_setpoint_c, C, selected, base.supply_temp_setpoint_k, to_k)
+        if body.supply_temp_setpoint_c is not None else base.supply_temp_setpoint_k.copy(),
+        _per_item("dp_setpoint_psi", body.dp_setpoint_psi, C, selected, base.dp_setpoint_pa,
+                  lambda v: float(v) * PSI_TO_PA) if body.dp_setpoint_psi is not None else base.dp_setpoint_pa.copy(),
+        _valves(body.valve_fractions, selected, base.valve_fractions)
+        if body.valve_fractions is not None else base.valve_fractions.copy(),
+        _per_item("lw_setpoint_c", body.lw_setpoint_c, N, list(range(N)), base.lw_setpoint_k, to_k)
+        if body.lw_setpoint_c is not None else base.lw_setpoint_k.copy(),
+    )  # fmt: skip
+    for name, values, low, high in (("supply_temp_setpoint_c", candidate.supply_temp_setpoint_k, K0, K0 + 80.0),
+                                    ("dp_setpoint_psi", candidate.dp_setpoint_pa, 0.0, 100.0 * PSI_TO_PA),
+                                    ("lw_setpoint_c", candidate.lw_setpoint_k, K0, K0 + 80.0)):  # fmt: skip
+        if not np.all(np.isfinite(values)) or np.any(values < low) or np.any(values > high):
+            unit_low, unit_high = (0.0, 80.0) if name.endswith("_c") else (0.0, 100.0)
+            raise HTTPException(422, f"`{name}` must be within [{unit_low:g}, {unit_high:g}] (the guardrails clamp "
+                                     "further to the configured limits)")  # fmt: skip
+    limits = (ctx.config_doc().config.guardrails if ctx.config_doc() else None)
+    clamps = []
+    if limits is not None:
+        preview = apply_guardrails(candidate, base, state.wet_bulb_k, limits, system)
+        clamps = [cl.model_dump() for cl in preview.clamps]
+    changes = {"mode": "manual", "manual_action": ActionModel.from_action(candidate).model_dump()}
+    doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "manual setpoints from the API")
+    detail = "manual setpoints set" + (f"; the guardrails will clamp {len(clamps)} value(s)" if clamps else "")
+    return _answer(doc, detail, clamps)

@@ -1,0 +1,250 @@
+"""Read endpoints: health, state, history, agents, decisions, alerts, config, metrics and the page."""
+
+from __future__ import annotations
+
+import difflib
+import math
+import time
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.responses import FileResponse, JSONResponse, Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from lcmesh.mesh.agents.ui.answers import NotReady
+from lcmesh.mesh.agents.ui.schemas import CabinetView, Health, HistoryAnswer, StateView, TowerView
+from lcmesh.mesh.agents.ui.views import c, kw, psi
+from lcmesh.mesh.history import STATE_FIELDS
+from lcmesh.mesh.messages import ActionModel
+
+router = APIRouter()
+NOT_READY = {503: {"description": "the mesh is not ready; `detail` says why"}}
+DEFAULT_WINDOW_S = 3600.0
+
+
+def _ctx(request: Request):
+    return request.app.state.ctx
+
+
+@router.get("/", include_in_schema=False)
+async def page(request: Request) -> FileResponse:
+    from lcmesh.mesh.agents.ui.app import PAGE_CSP, STATIC_DIR
+
+    return FileResponse(STATIC_DIR / "index.html", headers={"Content-Security-Policy": PAGE_CSP,
+                                                            "X-Content-Type-Options": "nosniff"})  # fmt: skip
+
+
+@router.get("/api/health", response_model=Health, tags=["read"])
+def health(request: Request) -> Health:
+    """Liveness and readiness: always 200 while the UI runs; `ready` says whether data endpoints can answer."""
+    ctx = _ctx(request)
+    reasons = []
+    state = ctx.store.state
+    if state is None:
+        reasons.append("no plant state received yet (Sensor agent not running?)")
+    try:
+        ctx.history()
+        history = True
+    except (NotReady, FileNotFoundError):
+        history = False
+        reasons.append("history file not there yet")
+    doc = ctx.config_doc()
+    if doc is None:
+        reasons.append("no configuration seen yet (Configuration agent not running?)")
+    age = ctx.store.state_age_s()
+    if age is not None and state is not None and age > max(10.0, 20 * state.period_s):
+        reasons.append(f"the latest plant state is {age:.0f} s old")
+    ready = state is not None and history
+    status = "ok" if not reasons else "degraded" if ready else "starting"
+    return Health(status=status, ready=ready, reasons=reasons, agent_id=ctx.agent_id, site=ctx.settings.site,
+                  system=ctx.system.name, uptime_s=round(time.monotonic() - ctx.started_at, 3),
+                  plant_step=state.step if state else None, plant_state_age_s=None if age is None else round(age, 3),
+                  history=history, config_version=doc.version if doc else None, live_clients=ctx.hub.clients,
+                  chat_phraser=ctx.chat.phraser.name)  # fmt: skip
+
+
+@router.get("/api/state", tags=["read"], response_class=Response,
+            responses={200: {"model": StateView, "description": "the latest plant state"}, **NOT_READY})  # fmt: skip
+async def state(request: Request) -> Response:
+    """The latest plant state in °C, kW, psi (prepared once per state, so this is cheap)."""
+    data = request.app.state.ctx.store.view_json
+    if data is None:
+        raise NotReady("no plant state has arrived yet from the Sensor agent (is it running?)")
+    return Response(data, media_type="application/json")
+
+
+def _view(request: Request) -> dict:
+    view = _ctx(request).store.view
+    if view is None:
+        raise NotReady("no plant state has arrived yet from the Sensor agent (is it running?)")
+    return view
+
+
+@router.get("/api/state/cabinets/{cabinet}", response_model=CabinetView, tags=["read"],
+            responses={404: {"description": "no such cabinet"}, **NOT_READY})  # fmt: skip
+def cabinet_state(request: Request, cabinet: int) -> dict:
+    """One cabinet (numbered from 1) of the latest state."""
+    view = _view(request)
+    n = len(view["cabinets"])
+    if not 1 <= cabinet <= n:
+        raise HTTPException(404, f"cabinet {cabinet} does not exist; {view['system']} has cabinets 1..{n}")
+    return view["cabinets"][cabinet - 1]
+
+
+@router.get("/api/state/towers/{tower}", response_model=TowerView, tags=["read"],
+            responses={404: {"description": "no such tower"}, **NOT_READY})  # fmt: skip
+def tower_state(request: Request, tower: int) -> dict:
+    """One cooling tower (numbered from 1) of the latest state."""
+    view = _view(request)
+    n = len(view["towers"])
+    if not 1 <= tower <= n:
+        raise HTTPException(404, f"tower {tower} does not exist; {view['system']} has towers 1..{n}")
+    return view["towers"][tower - 1]
+
+
+def _ui_name(field: str) -> str:
+    """History column to API field name: ``_k`` -> ``_c`` (°C), ``_w`` -> ``_kw``."""
+    return field[:-2] + "_c" if field.endswith("_k") else field[:-2] + "_kw" if field.endswith("_w") else field
+
+
+UI_FIELDS = {_ui_name(f): f for f in STATE_FIELDS}
+UNITS = {name: "degC" if name.endswith("_c") else "kW" if name.endswith("_kw") else "%" for name in UI_FIELDS}
+
+
+def _convert(field: str, value: float | None) -> float | None:
+    if value is None:
+        return None
+    return c(value) if field.endswith("_k") else kw(value) if field.endswith("_w") else round(float(value), 3)
+
+
+@router.get("/api/history", response_model=HistoryAnswer, tags=["read"],
+            responses={404: {"description": "unknown run"}, **NOT_READY})  # fmt: skip
+def history(
+    request: Request,
+    fields: Annotated[str | None, Query(description=f"comma-separated, default all: {', '.join(UI_FIELDS)}")] = None,
+    last_s: Annotated[float | None, Query(gt=0, description="plant seconds before the newest state (default 3600)")] = None,
+    start_s: Annotated[float | None, Query(ge=0, description="plant time from (s into the run)")] = None,
+    end_s: Annotated[float | None, Query(ge=0, description="plant time to (s into the run)")] = None,
+    start_step: Annotated[int | None, Query(ge=0)] = None,
+    end_step: Annotated[int | None, Query(ge=0)] = None,
+    max_points: Annotated[int, Query(ge=2, le=200_000, description="rows at most; longer ranges are decimated")] = 1000,
+    run_id: Annotated[str | None, Query(max_length=64, description="default: the newest run")] = None,
+) -> dict:
+    """Plant summaries over a time range in °C, kW and %: step, time_s and the selected fields."""
+    ctx = _ctx(request)
+    selected = _fields(fields)
+    modes = [m for m, given in (("last_s", last_s is not None), ("start_s/end_s", start_s is not None or end_s is not None),
+                                ("start_step/end_step", start_step is not None or end_step is not None)) if given]  # fmt: skip
+    if len(modes) > 1:
+        raise HTTPException(422, f"give one range: {' or '.join(modes)}, not several")
+    reader = ctx.history()
+    runs = {r["run_id"] for r in reader.runs()}
+    if run_id is not None and run_id not in runs:
+        raise HTTPException(404, f"run {run_id!r} is not in the history; known runs: {', '.join(sorted(runs)) or 'none'}")
+    run = run_id or reader.latest_run_id()
+    if run is None:
+        raise NotReady("the history holds no run yet")
+    step_s = ctx.system.step_s
+    if start_step is not None or end_step is not None:
+        first, last = start_step or 0, end_step
+    elif start_s is not None or end_s is not None:
+        if start_s is not None and end_s is not None and end_s < start_s:
+            raise HTTPException(422, f"`end_s` ({end_s}) must be >= `start_s` ({start_s})")
+        first, last = int((start_s or 0.0) // step_s), None if end_s is None else int(end_s // step_s)
+    else:
+        newest = _newest_step(ctx, reader, run)
+        first, last = max(0, newest - int(round((last_s or DEFAULT_WINDOW_S) / step_s))), newest
+    if last is not None and last < first:
+        raise HTTPException(422, f"`end_step` ({last}) must be >= `start_step` ({first})")
+    span = (last if last is not None else _newest_step(ctx, reader, run)) - first + 1
+    points = min(max_points, ctx.ui.history_max_points)
+    every = max(1, math.ceil(span / points))
+    columns = [UI_FIELDS[name] for name in selected]
+    rows = reader.states(start_step=first, end_step=last, fields=columns, run_id=run, every=every, limit=points)
+    return {"run_id": run, "fields": selected, "units": {name: UNITS[name] for name in selected}, "every": every,
+            "rows": [{"step": r["step"], "time_s": r["time_s"],
+                      **{name: _convert(col, r[col]) for name, col in zip(selected, columns)}} for r in rows]}  # fmt: skip
+
+
+def _fields(text: str | None) -> list[str]:
+    """API field names from a comma list (history column names are accepted too)."""
+    if not text:
+        return list(UI_FIELDS)
+    out = []
+    for name in (part.strip() for part in text.split(",") if part.strip()):
+        name = _ui_name(name) if name in STATE_FIELDS else name
+        if name not in UI_FIELDS:
+            close = difflib.get_close_matches(name, UI_FIELDS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise HTTPException(422, f"`fields`: unknown field {name!r}{hint}; known: {', '.join(UI_FIELDS)}")
+        if name not in out:
+            out.append(name)
+    return out
+
+
+def _newest_step(ctx, reader, run: str) -> int:
+    state = ctx.store.state
+    if state is not None and state.run_id == run:
+        return state.step
+    latest = reader.latest_state(run)
+    return latest.step if latest is not None else 0
+
+
+@router.get("/api/agents", tags=["read"])
+def agents(request: Request) -> dict:
+    """Every agent seen on the bus: liveliness, CPU, memory, message counts, and the Agent Monitor's advice."""
+    ctx = _ctx(request)
+    report = ctx.store.monitor
+    return {"agents": ctx.store.agents_view(),
+            "recommendations": [r.model_dump() for r in report.recommendations] if report else [],
+            "fallback_steps_last_minute": report.fallback_steps_last_minute if report else None}  # fmt: skip
+
+
+def _decision_row(row: dict) -> dict:
+    action = ActionModel.model_validate(row["action"])
+    row = dict(row)
+    row["action"] = {
+        "supply_temp_setpoint_c": [c(v) for v in action.supply_temp_setpoint_k],
+        "dp_setpoint_psi": [psi(v) for v in action.dp_setpoint_pa],
+        "valve_fractions": [[round(v, 3) for v in r] for r in action.valve_fractions],
+        "lw_setpoint_c": [c(v) for v in action.lw_setpoint_k],
+    }
+    return row
+
+
+@router.get("/api/decisions", tags=["read"], responses=NOT_READY)
+def decisions(request: Request, limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+              since_step: Annotated[int | None, Query(ge=0)] = None) -> dict:  # fmt: skip
+    """Applied actions newest first: source controller and version, clamps, fallback, explanation."""
+    ctx = _ctx(request)
+    try:
+        reader = ctx.history()
+    except NotReady:
+        return {"source": "memory", "decisions": ctx.store.recent_decisions(limit)}
+    return {"source": "history", "decisions": [_decision_row(r) for r in reader.decisions(limit, since_step)]}
+
+
+@router.get("/api/alerts", tags=["read"])
+def alerts(request: Request, active: bool = False, limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> dict:
+    """Maintenance alerts newest first (`active=true`: raised and not cleared)."""
+    ctx = _ctx(request)
+    try:
+        reader = ctx.history()
+    except NotReady:
+        items = ctx.store.active_alerts() if active else list(ctx.store.alerts.values())
+        return {"source": "memory", "alerts": [a.model_dump(mode="json") for a in items][:limit]}
+    return {"source": "history", "alerts": reader.alerts(active_only=active, limit=limit)}
+
+
+@router.get("/api/config", tags=["read"], responses=NOT_READY)
+def get_config(request: Request) -> JSONResponse:
+    """The current configuration document (version, controller, mode, guardrails in SI, LLM settings)."""
+    ctx = _ctx(request)
+    doc = ctx.config_doc() or ctx.require_gateway().config()
+    return JSONResponse(doc.model_dump(mode="json"))
+
+
+@router.get("/metrics", tags=["read"], response_class=Response)
+def metrics(request: Request) -> Response:
+    """Prometheus text exposition."""
+    return Response(generate_latest(request.app.state.registry), media_type=CONTENT_TYPE_LATEST)

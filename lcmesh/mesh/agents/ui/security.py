@@ -1,0 +1,149 @@
+"""Who may write, from where, and how often: the bearer token, the bind check, CORS origins, chat rate limits.
+
+- Writes (config, controller mode, setpoints) need ``Authorization: Bearer <token>``. The token
+  comes from ``LCMESH_API_TOKEN`` or the file ``LCMESH_API_TOKEN_FILE`` (created with a random
+  token when missing if ``LCMESH_UI_CREATE_TOKEN_FILE=true``). Bound to loopback with neither
+  set, the agent makes a random token and writes it to ``DATA_DIR/ui/api-token`` (mode 0600) so
+  a local operator can read it; bound beyond loopback it refuses to start without a strong token
+  (at least 16 characters, not a well-known default).
+- CORS: only the page's own origin (and ``LCMESH_UI_CORS_ORIGINS``) may call the API from a browser.
+- Chat: a token bucket per client address.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import os
+import secrets
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+MIN_TOKEN_CHARS = 16
+DEFAULT_TOKENS = frozenset({
+    "", "changeme", "change-me", "change_me", "secret", "token", "admin", "password", "lcmesh", "lc-mesh", "demo",
+    "test", "default", "api-token", "apitoken", "letmein", "0000000000000000", "1234567890123456",
+})  # fmt: skip
+TOKEN_FILE_NAME = "api-token"
+
+
+class InsecureBindError(RuntimeError):
+    """The server would accept writes from the network with a missing, default or short token."""
+
+
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and 'localhost'."""
+    if host.strip().lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def weak_token_reason(token: str) -> str | None:
+    """Why `token` is not fit for a server reachable from the network, or None."""
+    if token.strip().lower() in DEFAULT_TOKENS:
+        return "it is empty or a well-known default"
+    if len(token) < MIN_TOKEN_CHARS:
+        return f"it has {len(token)} characters, fewer than {MIN_TOKEN_CHARS}"
+    return None
+
+
+@dataclass(frozen=True)
+class ApiToken:
+    """The token writes need and where it came from ('env', 'file' or 'generated', with its path)."""
+
+    value: str
+    origin: str
+    path: Path | None = None
+
+
+def resolve_token(env_token: str | None, token_file: Path | None, host: str, data_dir: Path, *,
+                  create_file: bool = False) -> ApiToken:  # fmt: skip
+    """The write token for a server on `host`; InsecureBindError if `host` is beyond loopback and it is weak.
+
+    With `create_file`, a missing `token_file` is created with a random token (mode 0600): how
+    docker compose gets a per-deployment secret without one in the repository.
+    """
+    if env_token is not None and env_token.strip():
+        token = ApiToken(env_token.strip(), "env")
+    elif token_file is not None and create_file and not Path(token_file).exists():
+        return _generated(Path(token_file))
+    elif token_file is not None:
+        try:
+            text = Path(token_file).read_text().strip()
+        except OSError as exc:
+            raise InsecureBindError(f"`LCMESH_API_TOKEN_FILE` = {token_file} can not be read: {exc}") from None
+        token = ApiToken(text, "file", Path(token_file))
+    elif is_loopback(host):
+        return _generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
+    else:
+        raise InsecureBindError(
+            f"the UI would listen on {host} (beyond loopback) with no API token; set LCMESH_API_TOKEN or "
+            f"LCMESH_API_TOKEN_FILE to a random string of at least {MIN_TOKEN_CHARS} characters, "
+            "or bind to 127.0.0.1"
+        )
+    reason = weak_token_reason(token.value)
+    if reason is not None and not is_loopback(host):
+        raise InsecureBindError(
+            f"refusing to listen on {host} (beyond loopback) with the API token from {token.origin}: {reason}; "
+            f"use a random string of at least {MIN_TOKEN_CHARS} characters (e.g. `openssl rand -hex 24`)"
+        )
+    if not token.value:
+        return _generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
+    return token
+
+
+def _generated(path: Path) -> ApiToken:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    value = secrets.token_urlsafe(32)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(value + "\n")
+    os.chmod(path, 0o600)
+    return ApiToken(value, "generated", path)
+
+
+def token_matches(expected: str, authorization: str | None) -> bool:
+    """True if the Authorization header carries `expected` as a bearer token (constant-time compare)."""
+    if not authorization:
+        return False
+    scheme, _, given = authorization.partition(" ")
+    if scheme.lower() != "bearer" or not given:
+        return False
+    return hmac.compare_digest(given.strip().encode(), expected.encode())
+
+
+def allowed_origins(host: str, port: int, extra: list[str]) -> list[str]:
+    """The page's own origins (both loopback spellings when local) plus the configured extra ones."""
+    hosts = {host, "127.0.0.1", "localhost"} if is_loopback(host) else {host}
+    return sorted({f"http://{h}:{port}" for h in hosts} | set(extra))
+
+
+class RateLimiter:
+    """A token bucket per client: `burst` requests at once, refilled at `rate_per_min`."""
+
+    def __init__(self, rate_per_min: float, burst: int, max_clients: int = 10_000):
+        self.rate_per_s, self.burst, self.max_clients = rate_per_min / 60.0, float(burst), max_clients
+        self._buckets: OrderedDict[str, tuple[float, float]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def take(self, client: str) -> float:
+        """0 if `client` may go now (a token is spent), else the seconds until it may."""
+        now = time.monotonic()
+        with self._lock:
+            tokens, stamp = self._buckets.pop(client, (self.burst, now))
+            tokens = min(self.burst, tokens + (now - stamp) * self.rate_per_s)
+            wait = 0.0
+            if tokens >= 1.0:
+                tokens -= 1.0
+            else:
+                wait = (1.0 - tokens) / self.rate_per_s
+            self._buckets[client] = (tokens, now)
+            while len(self._buckets) > self.max_clients:
+                self._buckets.popitem(last=False)
+        return wait

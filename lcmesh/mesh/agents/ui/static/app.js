@@ -1,0 +1,315 @@
+// lc-mesh operator console: live plots (hand-written canvas), agents, decisions, alerts, chat, controller switch.
+// Data: GET /api/history for backfill, then server-sent events from /api/events. No external libraries.
+"use strict";
+
+const MAX_POINTS = 600;
+const COLORS = ["#58a6ff", "#f78166", "#3fb950", "#d2a8ff", "#e3b341", "#79c0ff", "#ff7b72", "#56d364", "#bc8cff", "#f2cc60"];
+const series = { blades: new Map(), power: new Map(), setpoints: new Map() };
+let system = null;
+let lastStep = null;
+
+const $ = (id) => document.getElementById(id);
+const fmt = (v, d = 1) => (v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(d));
+const el = (tag, attrs = {}, text) => {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== undefined) e.textContent = text;
+  return e;
+};
+
+function push(group, name, t, v) {
+  if (v === null || v === undefined) return;
+  let s = series[group].get(name);
+  if (!s) { s = []; series[group].set(name, s); }
+  if (s.length && s[s.length - 1][0] >= t) return;
+  s.push([t, v]);
+  if (s.length > MAX_POINTS) s.splice(0, s.length - MAX_POINTS);
+}
+
+// --- plotting: one function, lines against plant time (hours), optional horizontal band -------------------
+function plot(canvas, group, opts = {}) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = canvas.clientWidth, h = canvas.height / (canvas._dpr || 1);
+  if (canvas.width !== Math.round(w * dpr)) { canvas._dpr = dpr; canvas.width = Math.round(w * dpr); canvas.height = Math.round(h * dpr); }
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.clearRect(0, 0, w, h);
+  const lines = [...series[group].entries()];
+  let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
+  for (const [, pts] of lines) for (const [x, y] of pts) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
+  if (opts.band) { y0 = Math.min(y0, opts.band[0] - 1); y1 = Math.max(y1, opts.band[1] + 1); }
+  const L = 44, R = 8, T = 8, B = 36;
+  ctx.font = "11px system-ui, sans-serif";
+  ctx.fillStyle = "#8a9aab";
+  if (!Number.isFinite(x0)) { ctx.fillText("waiting for data ...", L, T + 20); return; }
+  if (x1 === x0) x1 = x0 + 1e-3;
+  if (y1 - y0 < 1e-6) { y0 -= 1; y1 += 1; }
+  const pad = (y1 - y0) * 0.06; y0 -= pad; y1 += pad;
+  const X = (x) => L + (x - x0) / (x1 - x0) * (w - L - R);
+  const Y = (y) => T + (1 - (y - y0) / (y1 - y0)) * (h - T - B);
+  if (opts.band) {
+    ctx.fillStyle = "rgba(63,185,80,0.08)";
+    ctx.fillRect(L, Y(opts.band[1]), w - L - R, Y(opts.band[0]) - Y(opts.band[1]));
+  }
+  ctx.strokeStyle = "#2a3541"; ctx.fillStyle = "#8a9aab"; ctx.lineWidth = 1;
+  for (let i = 0; i <= 4; i++) {
+    const y = y0 + (y1 - y0) * i / 4;
+    ctx.beginPath(); ctx.moveTo(L, Y(y)); ctx.lineTo(w - R, Y(y)); ctx.stroke();
+    ctx.fillText(fmt(y, Math.abs(y1 - y0) < 10 ? 1 : 0), 4, Y(y) + 4);
+  }
+  for (let i = 0; i <= 4; i++) {
+    const x = x0 + (x1 - x0) * i / 4;
+    ctx.textAlign = i === 0 ? "left" : i === 4 ? "right" : "center";
+    ctx.fillText(fmt(x, 2) + " h", X(x), h - B + 14);
+  }
+  ctx.textAlign = "left";
+  let lx = L;
+  lines.forEach(([name, pts], k) => {
+    ctx.strokeStyle = COLORS[k % COLORS.length]; ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    pts.forEach(([x, y], i) => (i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y))));
+    ctx.stroke();
+    ctx.fillStyle = ctx.strokeStyle;
+    ctx.fillRect(lx, h - 12, 10, 3);
+    ctx.fillText(name, lx + 13, h - 7);
+    lx += ctx.measureText(name).width + 28;
+  });
+}
+
+function redraw() {
+  plot($("plot-blades"), "blades", { band: [20, 40] });
+  plot($("plot-power"), "power");
+  plot($("plot-setpoints"), "setpoints");
+}
+
+// --- state --------------------------------------------------------------------------------------------
+function onState(s) {
+  if (!s) return;
+  const t = s.time_s / 3600;
+  s.cabinets.forEach((c) => {
+    push("blades", `cab ${c.cabinet}`, t, c.blade_temp_max_c);
+    push("setpoints", `supply ${c.cabinet}`, t, c.supply_setpoint_c);
+  });
+  s.towers.forEach((tw) => push("setpoints", `lw ${tw.tower}`, t, tw.leaving_setpoint_c));
+  push("power", "tower fans", t, s.totals.ct_fan_power_kw);
+  push("power", "pumps", t, s.totals.pump_power_kw);
+  $("step").textContent = s.step;
+  $("plant-time").textContent = fmt(t, 2) + " h";
+  const hot = s.cabinets.reduce((a, b) => (b.blade_temp_max_c > a.blade_temp_max_c ? b : a));
+  $("hottest").textContent = `${fmt(hot.blade_temp_max_c)} °C (cabinet ${hot.cabinet})`;
+  $("in-band").textContent = fmt(s.totals.blade_in_band_pct) + " %";
+  $("it-power").textContent = fmt(s.totals.it_power_kw) + " kW";
+  $("fan-power").textContent = fmt(s.totals.ct_fan_power_kw) + " kW";
+  $("pump-power").textContent = fmt(s.totals.pump_power_kw) + " kW";
+  $("wet-bulb").textContent = fmt(s.wet_bulb_c) + " °C";
+  if (s.controller) $("acting").textContent = s.controller.source + (s.controller.fallback ? " (fallback)" : "");
+  renderValves(s);
+  lastStep = s.step;
+}
+
+function renderValves(s) {
+  const box = $("valves");
+  box.replaceChildren();
+  s.cabinets.forEach((c) => {
+    const row = el("div", { class: "valve-row" });
+    row.append(el("span", { class: "label" }, `cabinet ${c.cabinet}`));
+    const bar = el("div", { class: "valve-bar" });
+    c.valve_fractions.forEach((v, j) => {
+      const part = el("span", {}, fmt(v, 2));
+      part.style.width = `${(v * 100).toFixed(1)}%`;  // CSSOM, not a style attribute: allowed by the page's CSP
+      part.style.background = COLORS[j % COLORS.length];
+      part.title = `branch ${j + 1}: ${fmt(v, 3)}`;
+      bar.append(part);
+    });
+    row.append(bar);
+    box.append(row);
+  });
+}
+
+// --- agents, decisions, alerts -------------------------------------------------------------------------
+function renderAgents(rows) {
+  const body = $("agents").querySelector("tbody");
+  body.replaceChildren();
+  rows.forEach((a) => {
+    const tr = el("tr");
+    tr.append(el("td", {}, a.agent_id), el("td", {}, a.role));
+    tr.append(el("td", { class: a.alive ? "up" : "down" }, a.alive ? "up" : "down"));
+    tr.append(el("td", { class: "num" }, fmt(a.cpu_pct, 0)), el("td", { class: "num" }, a.rss_bytes ? fmt(a.rss_bytes / 1048576, 0) : "–"));
+    tr.append(el("td", { class: "num" }, a.msgs_in));
+    if (a.advice && a.advice.length) tr.title = a.advice.join("\n");
+    body.append(tr);
+  });
+}
+
+const explanations = new Map();
+
+function decisionItem(d) {
+  const li = el("li");
+  li.dataset.decision = d.decision_id || "";
+  const head = el("div");
+  head.append(el("span", { class: "tag" }, `step ${d.step}`), el("span", { class: "tag" }, `${d.source_controller} v${d.source_version}`));
+  if (d.fallback) head.append(el("span", { class: "tag fallback" }, "fallback"));
+  const clamps = Array.isArray(d.clamps) ? d.clamps.length : d.n_clamps || 0;
+  if (clamps) head.append(el("span", { class: "tag clamp" }, `${clamps} clamp(s)`));
+  if (d.fallback_reason) head.append(el("span", { class: "muted" }, d.fallback_reason));
+  li.append(head);
+  const text = d.explanation || explanations.get(d.decision_id);
+  if (text) {
+    const det = el("details");
+    det.append(el("summary", {}, "explanation"), el("pre", {}, text));
+    li.append(det);
+  }
+  return li;
+}
+
+function addDecision(d, atTop = true) {
+  const list = $("decisions");
+  const li = decisionItem(d);
+  atTop ? list.prepend(li) : list.append(li);
+  while (list.children.length > 60) list.lastChild.remove();
+}
+
+function addExplanation(x) {
+  explanations.set(x.decision_id, x.text);
+  if (explanations.size > 200) explanations.delete(explanations.keys().next().value);
+  const li = document.querySelector(`#decisions li[data-decision="${CSS.escape(x.decision_id)}"]`);
+  if (li && !li.querySelector("details")) {
+    const det = el("details");
+    det.append(el("summary", {}, "explanation"), el("pre", {}, x.text));
+    li.append(det);
+  }
+}
+
+const alerts = new Map();
+function renderAlerts() {
+  const list = $("alerts");
+  list.replaceChildren();
+  const active = [...alerts.values()].filter((a) => a.state === "raised");
+  if (!active.length) list.append(el("li", { class: "muted" }, "none active"));
+  active.reverse().forEach((a) => {
+    const li = el("li");
+    li.append(el("span", { class: `tag ${a.severity}` }, a.severity), el("b", {}, `${a.kind} `), el("span", {}, `${a.location || ""} ${a.message}`));
+    if (a.prescription) li.append(el("div", { class: "muted" }, a.prescription));
+    list.append(li);
+  });
+}
+
+function onConfig(doc) {
+  if (!doc) return;
+  $("config").textContent = `v${doc.version}: ${doc.config.controller}, ${doc.config.mode}`;
+  $("controller-select").value = doc.config.controller;
+  $("mode-select").value = doc.config.mode;
+}
+
+// --- live events ----------------------------------------------------------------------------------------
+function connect() {
+  const source = new EventSource("/api/events");
+  const on = (name, fn) => source.addEventListener(name, (e) => { try { fn(JSON.parse(e.data)); } catch (err) { console.error(name, err); } });
+  source.onopen = () => { $("conn").textContent = "live"; $("conn").className = "pill pill-on"; };
+  source.onerror = () => { $("conn").textContent = "reconnecting"; $("conn").className = "pill pill-off"; };
+  on("hello", (h) => {
+    system = h.system;
+    $("site").textContent = `${h.system.name}`;
+    onState(h.state);
+    renderAgents(h.agents);
+    $("decisions").replaceChildren();
+    h.decisions.forEach((d) => addDecision(d, false));
+    h.alerts.forEach((a) => alerts.set(a.alert_id, a));
+    renderAlerts();
+    onConfig(h.config);
+    redraw();
+  });
+  on("state", (s) => { onState(s); redraw(); });
+  on("decision", (d) => addDecision(d));
+  on("explanation", addExplanation);
+  on("alert", (a) => { alerts.set(a.alert_id, a); renderAlerts(); });
+  on("agents", renderAgents);
+  on("config", onConfig);
+}
+
+async function backfill() {
+  try {
+    const r = await fetch("/api/history?last_s=3600&max_points=400&fields=blade_temp_max_c,ct_fan_power_kw,pump_power_kw");
+    if (!r.ok) return;
+    const h = await r.json();
+    h.rows.forEach((row) => {
+      const t = row.time_s / 3600;
+      push("blades", "plant max", t, row.blade_temp_max_c);
+      push("power", "tower fans", t, row.ct_fan_power_kw);
+      push("power", "pumps", t, row.pump_power_kw);
+    });
+    redraw();
+  } catch (err) { console.warn("history backfill failed", err); }
+}
+
+// --- writes: controller switch and confirmed chat commands (need the token) ----------------------------------
+function token() {
+  const t = $("token").value.trim();
+  if (t) sessionStorage.setItem("lcmesh-token", t);
+  return t || sessionStorage.getItem("lcmesh-token") || "";
+}
+
+async function send(method, path, body) {
+  const r = await fetch(path, { method, headers: { "Content-Type": "application/json", Authorization: `Bearer ${token()}` }, body: JSON.stringify(body) });
+  const data = await r.json().catch(() => ({}));
+  if (!r.ok) throw new Error(`${r.status}: ${data.detail || r.statusText}`);
+  return data;
+}
+
+$("mode-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  $("mode-result").textContent = "...";
+  try {
+    const d = await send("POST", "/api/control/mode", { controller: $("controller-select").value, mode: $("mode-select").value, reason: "web console" });
+    $("mode-result").textContent = `v${d.config_version}: ${d.controller}, ${d.mode}`;
+  } catch (err) { $("mode-result").textContent = err.message; }
+});
+
+// --- chat -------------------------------------------------------------------------------------------------
+function showAnswer(d) {
+  const box = el("div", { class: "chat-answer" });
+  box.append(el("div", { class: "answer-text" }, d.answer));
+  if (d.facts && d.facts.length) {
+    const det = el("details");
+    det.append(el("summary", { class: "muted" }, `${d.facts.length} fact(s) · ${d.intent} · ${d.phrased_by} · ${fmt(d.elapsed_ms, 0)} ms`));
+    const ul = el("ul", { class: "facts" });
+    d.facts.forEach((f) => ul.append(el("li", {}, `${f.name} = ${f.display} (${f.text}; ${f.source})`)));
+    det.append(ul);
+    box.append(det);
+  }
+  if (d.proposed_command) {
+    const c = d.proposed_command;
+    const cmd = el("div", { class: "command" });
+    cmd.append(el("div", {}, "Proposed command (not applied):"), el("code", {}, `${c.method} ${c.path} ${JSON.stringify(c.body)}`));
+    const ok = el("button", { type: "button" }, "Confirm with token");
+    const out = el("span", { class: "muted" });
+    ok.addEventListener("click", async () => {
+      out.textContent = " sending ...";
+      try { const r = await send(c.method, c.path, c.body); out.textContent = ` applied: config v${r.config_version}, ${r.detail}`; }
+      catch (err) { out.textContent = ` ${err.message}`; }
+    });
+    cmd.append(ok, out);
+    box.append(cmd);
+  }
+  return box;
+}
+
+$("chat-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const input = $("chat-input");
+  const message = input.value.trim();
+  if (!message) return;
+  const log = $("chat-log");
+  log.append(el("div", { class: "q" }, message));
+  input.value = "";
+  try {
+    const r = await fetch("/api/chat", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ message }) });
+    const d = await r.json();
+    if (!r.ok) { log.append(el("div", { class: "chat-answer error" }, `${r.status}: ${d.detail}`)); }
+    else log.append(showAnswer(d));
+  } catch (err) { log.append(el("div", { class: "chat-answer error" }, String(err))); }
+  log.scrollTop = log.scrollHeight;
+});
+
+window.addEventListener("resize", redraw);
+backfill().then(connect);

@@ -1,0 +1,124 @@
+"""Plant states as operators read them: °C, kW, psi, cabinets and towers numbered from 1.
+
+SI stays on the bus; these views are the UI edge (DESIGN.md). Blade groups are laid out
+cabinet-major (``blade_temp_k`` reshapes to (C, B x groups per branch)).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from lcmesh.mesh.messages import AppliedAction, PlantState, plant_state_to_observation
+from lcmesh.twin.system import PSI_TO_PA, SystemDescription
+
+K0 = 273.15
+DECIMALS = 3
+
+
+def c(kelvin: float) -> float:
+    """Kelvin to °C, rounded for display."""
+    return round(float(kelvin) - K0, DECIMALS)
+
+
+def kw(watts: float) -> float:
+    return round(float(watts) / 1e3, DECIMALS)
+
+
+def psi(pascals: float) -> float:
+    return round(float(pascals) / PSI_TO_PA, DECIMALS)
+
+
+def _r(x: float) -> float:
+    return round(float(x), DECIMALS)
+
+
+def _list(values: np.ndarray, convert=_r) -> list[float]:
+    return [convert(v) for v in np.asarray(values, dtype=float).ravel()]
+
+
+def state_view(state: PlantState, system: SystemDescription, applied: AppliedAction | None = None) -> dict[str, Any]:
+    """The UI view of a plant state (ValueError naming the block if the state does not fit `system`)."""
+    out = plant_state_to_observation(state, system).out
+    C, N = system.cabinets.count, system.towers.count
+    blades = np.asarray(out["blade_temp_k"]).reshape(C, -1)
+    cabinets = []
+    for i in range(C):
+        cabinets.append({
+            "cabinet": i + 1,
+            "blade_temps_c": _list(blades[i], c),
+            "blade_temp_max_c": c(blades[i].max()),
+            "branch_temps_c": _list(out["branch_temp_k"][i], c),
+            "branch_power_kw": _list(out["branch_power_w"][i], kw),
+            "valve_fractions": _list(out["applied_valve_fraction"][i]),
+            "supply_temp_c": c(out["supply_temp_k"][i]),
+            "supply_setpoint_c": c(out["applied_supply_setpoint_k"][i]),
+            "return_temp_c": c(out["return_temp_k"][i]),
+            "secondary_flow_kg_s": _r(out["secondary_flow_kg_s"][i]),
+            "dp_psi": psi(out["cabinet_dp_pa"][i]),
+            "dp_setpoint_psi": psi(out["applied_dp_setpoint_pa"][i]),
+            "pump_power_kw": kw(out["cdu_pump_power_w"][i]),
+            "cdu_heat_kw": kw(out["cdu_heat_w"][i]),
+        })  # fmt: skip
+    towers = []
+    for t in range(N):
+        towers.append({
+            "tower": t + 1,
+            "leaving_temp_c": c(out["ct_leaving_temp_k"][t]),
+            "leaving_setpoint_c": c(out["applied_lw_setpoint_k"][t]),
+            "entering_temp_c": c(out["ct_entering_temp_k"][t]),
+            "approach_k": _r(out["approach_k"][t]),
+            "fan_speed": _r(out["fan_speed"][t]),
+            "cells_active": _r(out["cells_active"][t]),
+            "fan_power_kw": kw(np.sum(out["cell_fan_power_w"][t])),
+            "pump_power_kw": kw(out["ct_pump_power_w"][t]),
+        })  # fmt: skip
+    temps = np.asarray(out["blade_temp_k"], dtype=float)
+    in_band = float(np.mean((temps > K0 + 20.0) & (temps < K0 + 40.0)) * 100.0)
+    fan_w, pump_w = float(out["ct_fan_power_w"]), float(out["pump_power_w"])
+    view = {
+        "system": state.system, "run_id": state.run_id, "step": state.step, "time_s": state.time_s,
+        "sent_at": state.sent_at.isoformat(), "period_s": state.period_s, "faults_active": state.faults_active,
+        "wet_bulb_c": c(state.wet_bulb_k),
+        "totals": {
+            "it_power_kw": kw(out["it_power_w"]), "it_cooling_kw": kw(out["it_cooling_w"]),
+            "ct_fan_power_kw": kw(fan_w), "pump_power_kw": kw(pump_w), "cooling_power_kw": kw(fan_w + pump_w),
+            "heat_rejected_kw": kw(out["heat_rejected_w"]), "blade_temp_max_c": c(temps.max()),
+            "blade_temp_mean_c": c(temps.mean()), "blade_in_band_pct": _r(in_band),
+        },
+        "cabinets": cabinets,
+        "towers": towers,
+        "controller": None,
+    }  # fmt: skip
+    if applied is not None:
+        view["controller"] = applied_brief(applied)
+    return view
+
+
+def applied_brief(a: AppliedAction) -> dict[str, Any]:
+    """Who decided the last applied action and what the guardrails did to it."""
+    return {"step": a.step, "source": a.source_controller, "version": a.source_version, "decision_id": a.decision_id,
+            "fallback": a.fallback, "fallback_reason": a.fallback_reason, "clamps": len(a.clamps)}  # fmt: skip
+
+
+def action_view(a: AppliedAction) -> dict[str, Any]:
+    """An applied action in UI units."""
+    act = a.action
+    return {
+        "supply_temp_setpoint_c": [c(v) for v in act.supply_temp_setpoint_k],
+        "dp_setpoint_psi": [psi(v) for v in act.dp_setpoint_pa],
+        "valve_fractions": [[_r(v) for v in row] for row in act.valve_fractions],
+        "lw_setpoint_c": [c(v) for v in act.lw_setpoint_k],
+    }
+
+
+def decision_view(a: AppliedAction, explanation: str | None) -> dict[str, Any]:
+    """One entry of the decision feed (the same keys as /api/decisions rows)."""
+    return {
+        "step": a.step, "time_s": a.time_s, "decision_id": a.decision_id, "source_controller": a.source_controller,
+        "source_version": a.source_version, "fallback": a.fallback, "fallback_reason": a.fallback_reason,
+        "rejected_reason": a.rejected_reason, "clamps": [cl.model_dump() for cl in a.clamps],
+        "latency_ms": a.latency_ms, "applied_at": a.sent_at.isoformat(), "action": action_view(a),
+        "explanation": explanation,
+    }  # fmt: skip

@@ -1,0 +1,68 @@
+"""Token resolution and the insecure-bind refusal, bearer matching, the chat rate limiter."""
+
+from __future__ import annotations
+
+import stat
+
+import pytest
+
+from lcmesh.mesh.agents.ui.security import (
+    InsecureBindError, RateLimiter, allowed_origins, is_loopback, resolve_token, token_matches,
+)  # fmt: skip
+
+STRONG = "9f86d081884c7d659a2feaa0c55ad015"
+
+
+def test_loopback_without_a_token_generates_one_readable_only_by_the_owner(tmp_path):
+    token = resolve_token(None, None, "127.0.0.1", tmp_path)
+    assert token.origin == "generated" and len(token.value) >= 32
+    assert token.path.read_text().strip() == token.value
+    assert stat.S_IMODE(token.path.stat().st_mode) == 0o600
+
+
+@pytest.mark.parametrize("env_token", [None, "", "changeme", "short-token"])
+def test_beyond_loopback_a_missing_default_or_short_token_is_refused(env_token, tmp_path):
+    with pytest.raises(InsecureBindError, match="LCMESH_API_TOKEN|at least 16"):
+        resolve_token(env_token, None, "0.0.0.0", tmp_path)
+
+
+def test_strong_tokens_from_env_or_file(tmp_path):
+    assert resolve_token(STRONG, None, "0.0.0.0", tmp_path).origin == "env"
+    secret = tmp_path / "token"
+    secret.write_text(STRONG + "\n")
+    token = resolve_token(None, secret, "10.0.0.5", tmp_path)
+    assert token.value == STRONG and token.origin == "file"
+    with pytest.raises(InsecureBindError, match="can not be read"):
+        resolve_token(None, tmp_path / "missing", "10.0.0.5", tmp_path)
+    assert resolve_token("demo", None, "127.0.0.1", tmp_path).value == "demo"  # weak is tolerated on loopback
+    created = resolve_token(None, tmp_path / "made" / "token", "0.0.0.0", tmp_path, create_file=True)
+    assert created.origin == "generated" and len(created.value) >= 32
+    again = resolve_token(None, tmp_path / "made" / "token", "0.0.0.0", tmp_path, create_file=True)
+    assert again.value == created.value and again.origin == "file"  # a restart keeps the token
+
+
+def test_bearer_matching_and_loopback_detection():
+    assert token_matches(STRONG, f"Bearer {STRONG}") and token_matches(STRONG, f"bearer {STRONG}")
+    assert not token_matches(STRONG, STRONG) and not token_matches(STRONG, "Bearer x") and not token_matches(STRONG, None)
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost") and is_loopback("127.1.2.3")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4")
+    assert allowed_origins("127.0.0.1", 8000, []) == ["http://127.0.0.1:8000", "http://localhost:8000"]
+
+
+def test_rate_limiter_allows_a_burst_then_asks_to_wait():
+    limiter = RateLimiter(rate_per_min=60, burst=3)
+    assert [limiter.take("a") for _ in range(3)] == [0.0, 0.0, 0.0]
+    wait = limiter.take("a")
+    assert 0.5 < wait <= 1.0
+    assert limiter.take("b") == 0.0  # per client
+
+
+def test_the_ui_agent_refuses_to_start_beyond_loopback_with_a_weak_token(tmp_path):
+    from lcmesh.mesh.agents.ui import UiAgent
+    from lcmesh.mesh.agents.ui.config import UiSettings
+    from tests.mesh.conftest import make_settings
+
+    agent = UiAgent(make_settings(tmp_path, ui_host="0.0.0.0"), ui=UiSettings(api_token="changeme"))
+    agent.bus = None
+    with pytest.raises(InsecureBindError, match="beyond loopback"):
+        agent.on_start()  # the token check comes before any socket is bound
