@@ -21,10 +21,13 @@ def test_proposals_are_applied_with_latency_audit_and_explanations(start_agent, 
     history = HistoryReader(mesh_settings.history_file)
     decisions = [d for d in history.decisions(limit=200) if not d["fallback"]]
     assert len(decisions) >= 15
-    d = decisions[0]
-    assert d["source_controller"] == "g36" and d["source_version"] == "1"
-    assert d["decision_id"] and 0 < d["latency_ms"] < 1000
-    assert d["explanation"] and "EXPLANATION" in d["explanation"]
+    assert all(d["source_controller"] == "g36" and d["source_version"] == "1" for d in decisions)
+    assert all(d["decision_id"] and 0 < d["latency_ms"] < 1000 for d in decisions)
+    # explanations follow their decision asynchronously: the newest may not have one yet
+    explained_decisions = [d for d in decisions if d["explanation"]]
+    assert explained_decisions, "no decision got its explanation"
+    d = explained_decisions[0]
+    assert "EXPLANATION" in d["explanation"]
     explained = history.explanations(decision_id=d["decision_id"])
     assert explained and any(f["name"] == "cabinet" for f in explained[0]["facts"])
     assert history.step_gaps("plant_states") == [] and history.step_gaps("actions") == []
