@@ -27,7 +27,7 @@ SCALE_SYSTEMS = ("lcopt-10", "lcopt-15", "lcopt-20", "lcopt-25")
 REWARD_SEEDS = range(1010, 1020)
 
 
-def case_policy(case: int) -> Path:
+def case_policy(case: int | str) -> Path:
     return ARTIFACTS / "ppo" / f"case{case}"
 
 
@@ -106,6 +106,13 @@ def run_bench_control(quick: bool = False, plot_dir: Path | None = None) -> dict
         row.update(title=spec.title, training_wall_s=meta["metrics"].get("wall_s"),
                    training_env_steps=meta["metrics"].get("env_steps"))  # fmt: skip
         result["ablation"][str(case)] = row
+    extra = case_policy("7-64k")  # case 7 under the 64k-step schedule the other cases had (see docs/controllers.md)
+    if extra.with_suffix(".json").exists():
+        row = evaluate("lcopt-5", "ppo", extra, hours=hours, rewards=not quick)
+        meta = json.loads(extra.with_suffix(".json").read_text())["manifest"]
+        row.update(title="CA & multi-head, 64k-step std schedule", training_wall_s=meta["metrics"].get("wall_s"),
+                   training_env_steps=meta["metrics"].get("env_steps"))  # fmt: skip
+        result["ablation"]["7b"] = row
     g36 = result["ablation"]["1"]
     c7 = result["ablation"].get("7", {})
     if "d_blade_pct" in c7:
