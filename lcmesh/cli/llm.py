@@ -1,3 +1,66 @@
 """lcmesh distill llm, lcmesh bench llm (the LLM controller issue)."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, progress_bar, write_json
+from lcmesh.cli.control import dataclass_options
+
+
+def _distill_llm(config) -> None:
+    from lcmesh.distill.llm import distill_llm
+
+    with progress_bar() as progress:
+        tasks: dict[str, int] = {}
+
+        def on_progress(stage: str, done: int, total: int) -> None:
+            key = stage.split(" loss ")[0]
+            if key not in tasks:
+                tasks[key] = progress.add_task(stage, total=total)
+            progress.update(tasks[key], completed=done, total=total, description=stage)
+
+        manifest = distill_llm(config, progress=on_progress)
+    h, t = manifest["metrics"]["heldout"], manifest["metrics"]["train"]
+    console.print(
+        f"adapter {manifest['adapter_id']} ({manifest['adapter_bytes'] / 1e6:.1f} MB): loss {t['loss_first']:.3f} -> "
+        f"{t['loss_last10_mean']:.3f}, {t['tokens_per_s']:.0f} tokens/s; held-out CDU R2 {h.get('cdu_r2', float('nan')):.3f}, "
+        f"valve R2 {h.get('valve_r2') or float('nan'):.3f}, parse failures {100 * h['parse_failure_rate']:.1f} %"
+    )
+
+
+def _register() -> None:
+    from lcmesh.llm.distill_config import LlmDistillConfig
+
+    distill_app.command(
+        "llm", help="QLoRA-distill a teacher (ppo | g36 | tree) into SmolLM2-135M-Instruct; adapter + manifest."
+    )(dataclass_options(LlmDistillConfig, _distill_llm))
+
+
+_register()
+
+
+@bench_app.command("llm")
+def bench_llm(
+    json_out: JsonOpt = None,
+    markdown: Annotated[Optional[Path], typer.Option(help="update the llm section of this BENCHMARKS.md")] = None,
+    quick: Annotated[bool, typer.Option(help="small sample counts and 1 h closed loop (smoke run)")] = False,
+    hours: Annotated[float, typer.Option(help="closed-loop hours of the Frontier day")] = 2.0,
+    period: Annotated[int, typer.Option(help="closed loop: the LLM decides every N steps")] = 4,
+    adapter: Annotated[str, typer.Option(help="LoRA adapter folder, 'default' (packaged) or 'none'")] = "default",
+) -> None:
+    """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
+    from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
+    from lcmesh.bench.report import update_benchmarks_md
+
+    cfg = BenchLlmConfig.make(quick=quick, hours=hours, period_steps=period, adapter=adapter)
+    with progress_bar() as progress:
+        task = progress.add_task("bench llm", total=None)
+        result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg))
+    write_json(json_out, result)
+    if markdown is not None:
+        update_benchmarks_md(markdown, "llm", result, render=render_llm)
+        console.print(f"updated {markdown}")

@@ -186,6 +186,7 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     say("explanation samples", 0, 1)
     explain = explanation_samples(make_teacher(cfg.teacher, system, cfg.policy), system, traces[0], cfg.explain_steps,
                                   cfg.explain_counts(), cfg.seed, cfg.wet_bulb_offset_k)  # fmt: skip
+    say("explanation samples", 1, 1)
     held = collect_experience(teacher, system, [f"synthetic:{cfg.heldout_seed}"], cfg.steps_per_trace,
                               wet_bulb_offset_k=cfg.wet_bulb_offset_k,
                               on_step=lambda n: say("teacher rollout (held-out trace)", n, cfg.steps_per_trace))  # fmt: skip
@@ -195,8 +196,16 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     train_cfg = LoraTrainConfig(quant=cfg.quant, compute_dtype=cfg.compute_dtype, r=cfg.r, alpha=cfg.alpha,
                                 epochs=cfg.epochs, lr=cfg.lr, batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens,
                                 seed=cfg.seed, threads=cfg.threads)  # fmt: skip
-    model, _, result = train_lora(model_dir, samples + explain, train_cfg,
-                                  on_step=lambda i, n, loss: say(f"QLoRA ({cfg.quant}) loss {loss:.3f}", i, n))  # fmt: skip
+    log_path, t_train = out / "train_log.jsonl", time.perf_counter()
+    log_path.write_text("")
+
+    def on_step(i: int, n: int, loss: float) -> None:
+        with log_path.open("a") as log:
+            log.write(json.dumps({"step": i, "of": n, "loss": round(loss, 5),
+                                  "elapsed_s": round(time.perf_counter() - t_train, 1)}) + "\n")  # fmt: skip
+        say(f"QLoRA ({cfg.quant}) loss {loss:.3f}", i, n)
+
+    model, _, result = train_lora(model_dir, samples + explain, train_cfg, on_step=on_step)
     adapter_file = save_adapter(model, out)
     del model
     backend = HfBackend(model_dir, adapter=out, dtype="bfloat16", threads=cfg.threads)
@@ -226,7 +235,6 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
         "adapter_bytes": adapter_file.stat().st_size,
     }  # fmt: skip
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float) + "\n")
-    (out / "losses.json").write_text(json.dumps([round(x, 5) for x in result.losses]) + "\n")
     _plot_losses(result.losses, out / "loss.png")
     return manifest
 

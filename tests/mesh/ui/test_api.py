@@ -50,6 +50,7 @@ def test_history_selects_fields_and_ranges(api, ui_mesh):
     raw = HistoryReader(ui_mesh.settings.history_file).states(start_step=steps[0], end_step=steps[0],
                                                               fields=("ct_fan_power_w",))  # fmt: skip
     assert abs(h["rows"][0]["ct_fan_power_kw"] - raw[0]["ct_fan_power_w"] / 1e3) < 1e-3
+    assert wait_until(lambda: api.get("/api/state").json()["step"] > 11, 30)  # the range below must be complete
     ranged = api.get("/api/history", params={"fields": "wet_bulb_c", "start_s": 0, "end_s": 150}).json()
     assert [r["step"] for r in ranged["rows"]] == list(range(0, 11))
     assert wait_until(lambda: api.get("/api/state").json()["step"] > 100, 30)

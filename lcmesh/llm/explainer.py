@@ -1,0 +1,123 @@
+"""LLM explanations of a cabinet decision, checked by the explanation evaluator, with a deterministic fallback.
+
+The toolbox computes the decision's facts (``cabinet_decision_facts``); the LLM writes the
+explanation from them (``lcmesh/prompts/controller_explain.md``: compact ``name = value`` lines);
+``lcmesh explain-eval``'s scorer checks the text; an explanation below the thresholds (numeric
+grounding 0.98, coverage 1, direction consistency 0.95) or with missing sections is replaced by the
+deterministic rendering, and the reason is counted. The distilled model was trained to write the
+renderer's text, so the rendering is also passed as a draft: the backend verifies it in long runs
+instead of decoding token by token (the text stays the model's own greedy output).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from string import Template
+
+import numpy as np
+
+from lcmesh.llm.base import LlmBackend
+from lcmesh.llm.io_format import load_template
+from lcmesh.mesh.tools.explain import explanation_record, render_explanation
+from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS, evaluate_record
+from lcmesh.mesh.tools.facts import Fact, cabinet_decision_facts
+from lcmesh.twin.plant import PlantAction
+from lcmesh.twin.system import SystemDescription
+
+MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
+LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
+
+
+@dataclass(frozen=True)
+class ExplainThresholds:
+    """Minimum scores an LLM explanation needs to be used (else the deterministic text is)."""
+
+    numeric_grounding: float = 0.98
+    coverage: float = 1.0
+    direction_consistency: float = 0.95
+
+
+@dataclass
+class ExplanationResult:
+    """The text an operator sees, where it came from and how the LLM's own text scored."""
+
+    text: str
+    source: str  # "llm" | "renderer"
+    level: str
+    llm_scores: dict
+    seconds: float
+    new_tokens: int = 0
+    fallback_reason: str | None = None
+    flags: list = field(default_factory=list)
+
+
+def explain_messages(facts: list[Fact], level: str) -> list[dict[str, str]]:
+    """Chat messages asking for an explanation of the decision behind ``facts`` at ``level``."""
+    system, user = load_template("controller_explain")
+    cabinet = next((str(f.value) for f in facts if f.name == "cabinet"), "?")
+    values = {"level": LEVEL_WORDS[level], "cabinet": cabinet, "headings": ", ".join(LEVEL_SECTIONS[level]),
+              "facts": "\n".join(f"{f.name} = {f.display}" for f in facts)}  # fmt: skip
+    return [{"role": "system", "content": Template(system).substitute(values)},
+            {"role": "user", "content": Template(user).substitute(values)}]  # fmt: skip
+
+
+class LlmExplainer:
+    """Explains cabinet decisions with an LLM backend; counts how often the renderer had to stand in."""
+
+    def __init__(
+        self,
+        system: SystemDescription,
+        backend: LlmBackend,
+        *,
+        thresholds: ExplainThresholds = ExplainThresholds(),
+        use_draft: bool = True,
+    ):
+        self.system, self.backend, self.thresholds, self.use_draft = system, backend, thresholds, use_draft
+        self.stats: Counter = Counter()
+
+    def explain(
+        self,
+        out: Mapping[str, np.ndarray],
+        action: PlantAction,
+        previous_action: PlantAction | None,
+        wet_bulb_k: float,
+        cabinet: int,
+        level: str = "short",
+        record_id: str = "decision",
+    ) -> ExplanationResult:
+        """The explanation of ``cabinet``'s part of ``action`` (``out``: plant outputs it was decided on)."""
+        if level not in MAX_NEW_TOKENS:
+            raise ValueError(f"`level` must be one of {', '.join(MAX_NEW_TOKENS)}, got {level!r}")
+        facts = cabinet_decision_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet)
+        rendered = render_explanation(facts, level)
+        t0 = time.perf_counter()
+        try:
+            gen = self.backend.chat([explain_messages(facts, level)], max_new_tokens=MAX_NEW_TOKENS[level],
+                                    drafts=[rendered] if self.use_draft else None)[0]  # fmt: skip
+            text, error, n_new = gen.text.strip() + "\n", gen.error, gen.new_tokens
+        except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
+            text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
+        seconds = time.perf_counter() - t0
+        record = explanation_record(out, action, facts, text, cabinet=cabinet, record_id=record_id,
+                                    previous_action=previous_action, wet_bulb_k=wet_bulb_k, level=level)  # fmt: skip
+        item = evaluate_record(record)
+        scores = {k: float(item[k]) for k in ("numeric_grounding", "coverage", "direction_consistency")}
+        reason = "backend" if error else self._failed_check(scores, item["flags"])
+        self.stats["explanations"] += 1
+        if reason is None:
+            self.stats["llm"] += 1
+            return ExplanationResult(text, "llm", level, scores, seconds, n_new, None, item["flags"])
+        self.stats["renderer"] += 1
+        self.stats[f"fallback_{reason}"] += 1
+        return ExplanationResult(rendered, "renderer", level, scores, seconds, n_new, reason, item["flags"])
+
+    def _failed_check(self, scores: dict, flags: list[dict]) -> str | None:
+        for key, minimum in vars(self.thresholds).items():
+            if scores[key] < minimum:
+                return key
+        if any(f["kind"] == "missing_section" for f in flags):
+            return "missing_section"
+        return None

@@ -1,0 +1,162 @@
+"""The controller's text protocol: one cabinet's observation as a prompt, its CDU action as strict JSON.
+
+The prompt (``lcmesh/prompts/controller_action.md``) shows what the distilled policies see (the
+cabinet rows of ``lcmesh.distill.features``) in display units: per branch its mean and hottest
+temperature, its coming-step power and power share; the CDU's measured supply, the hot-water supply
+and the wet bulb. The answer is one JSON object, ``{"supply_c": 27.35, "dp_psi": 31.2, "valves":
+[0.4, 0.33, 0.27]}``, parsed strictly: any other text, a missing or extra key, a non-finite number,
+a setpoint outside 20-40 degC / 25-38 psi, a negative valve, the wrong count or a split not summing
+to 1 within ``VALVE_SUM_TOLERANCE`` is rejected with a reason (the controller then falls back).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from string import Template
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from lcmesh.twin.system import PSI_TO_PA
+
+K0 = 273.15
+SUPPLY_RANGE_C = (20.0, 40.0)
+DP_RANGE_PSI = (25.0, 38.0)
+VALVE_SUM_TOLERANCE = 0.03
+ANSWER_STOP = "}"
+REASONS = ("empty", "not_json", "schema", "out_of_bounds", "valves_count", "valves_negative", "valves_sum", "backend")
+
+
+@dataclass(frozen=True)
+class CabinetView:
+    """What the controller prompt shows of one cabinet, display units (degC, kW, %)."""
+
+    branch_temp_c: tuple[float, ...]
+    branch_max_temp_c: tuple[float, ...]
+    branch_power_kw: tuple[float, ...]
+    supply_c: float
+    htw_supply_c: float
+    wet_bulb_c: float
+
+
+@dataclass(frozen=True)
+class CabinetDecision:
+    """A parsed, in-bounds answer in SI units; ``valves`` normalized to sum to exactly 1."""
+
+    supply_temp_setpoint_k: float
+    dp_setpoint_pa: float
+    valve_fractions: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class ParseFailure:
+    """Why an answer was rejected: ``reason`` is one of ``REASONS``, ``detail`` names the field."""
+
+    reason: str
+    detail: str
+
+
+class _Answer(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    supply_c: float = Field(ge=SUPPLY_RANGE_C[0], le=SUPPLY_RANGE_C[1])
+    dp_psi: float = Field(ge=DP_RANGE_PSI[0], le=DP_RANGE_PSI[1])
+    valves: list[float]
+
+
+def cabinet_views(
+    out: Mapping[str, np.ndarray], branch_power_w: np.ndarray, wet_bulb_k: float
+) -> list[CabinetView]:
+    """Views of all cabinets from plant outputs (``Plant.out`` or an experience step) and the (C, B) loads."""
+    temp = np.asarray(out["branch_temp_k"], dtype=float) - K0
+    hottest = np.asarray(out["branch_max_temp_k"], dtype=float) - K0
+    power = np.asarray(branch_power_w, dtype=float).reshape(temp.shape) / 1e3
+    supply = np.asarray(out["supply_temp_k"], dtype=float).reshape(-1) - K0
+    htw = float(np.mean(out["htw_supply_temp_k"])) - K0
+    wb = float(wet_bulb_k) - K0
+    return [
+        CabinetView(tuple(temp[c].tolist()), tuple(hottest[c].tolist()), tuple(power[c].tolist()),
+                    float(supply[c]), htw, wb)  # fmt: skip
+        for c in range(temp.shape[0])
+    ]
+
+
+@lru_cache(maxsize=None)
+def load_template(name: str) -> tuple[str, ...]:
+    """A packaged prompt: (system, user) when it has both parts, else (body,), comment lines dropped."""
+    text = resources.files("lcmesh.prompts").joinpath(f"{name}.md").read_text(encoding="utf-8")
+    body = "\n".join(line for line in text.splitlines() if not line.startswith("<!-- ") or "-->" not in line[-4:])
+    if "<!-- system -->" in text:
+        system, user = text.split("<!-- system -->", 1)[1].split("<!-- user -->", 1)
+        return system.strip(), user.strip()
+    return (body.strip(),)
+
+
+def controller_messages(view: CabinetView) -> list[dict[str, str]]:
+    """Chat messages asking for one cabinet's CDU action."""
+    system, user = load_template("controller_action")
+    (branch_line,) = load_template("controller_branch")
+    total = sum(view.branch_power_kw)
+    lines = []
+    for j, (t, tmax, p) in enumerate(zip(view.branch_temp_c, view.branch_max_temp_c, view.branch_power_kw)):
+        share = 100.0 * p / total if total > 0 else 100.0 / len(view.branch_power_kw)
+        lines.append(Template(branch_line).substitute(
+            branch=j + 1, temp_c=f"{t:.1f}", max_temp_c=f"{tmax:.1f}", power_kw=f"{p:.1f}", share_pct=f"{share:.0f}"
+        ))  # fmt: skip
+    values = {"branches": "\n".join(lines), "wet_bulb_c": f"{view.wet_bulb_c:.1f}", "supply_c": f"{view.supply_c:.1f}",
+              "htw_supply_c": f"{view.htw_supply_c:.1f}", "n_branches": str(len(view.branch_temp_c))}  # fmt: skip
+    return [
+        {"role": "system", "content": Template(system).substitute(values)},
+        {"role": "user", "content": Template(user).substitute(values)},
+    ]
+
+
+def answer_text(supply_temp_setpoint_k: float, dp_setpoint_pa: float, valve_fractions) -> str:
+    """The training target / expected answer for an action, compact JSON at the precision the model writes."""
+    valves = ",".join(f"{v:.2f}" for v in np.asarray(valve_fractions, dtype=float))
+    return (f'{{"supply_c":{supply_temp_setpoint_k - K0:.2f},"dp_psi":{dp_setpoint_pa / PSI_TO_PA:.1f},'
+            f'"valves":[{valves}]}}')  # fmt: skip
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"non-finite number {name}")
+
+
+def parse_cabinet_answer(text: str, n_branches: int) -> CabinetDecision | ParseFailure:
+    """Strictly parse one answer; a failure says why (never raises)."""
+    body = (text or "").strip()
+    if not body:
+        return ParseFailure("empty", "the answer is empty")
+    try:
+        data = json.loads(body, parse_constant=_reject_constant)
+    except ValueError as exc:
+        return ParseFailure("not_json", f"the answer is not one JSON object ({exc}): {body[:80]!r}")
+    if not isinstance(data, dict):
+        return ParseFailure("not_json", f"the answer must be a JSON object, got {type(data).__name__}")
+    try:
+        answer = _Answer.model_validate(data)
+    except ValidationError as exc:
+        return _classify(exc)
+    valves = answer.valves
+    if len(valves) != n_branches:
+        return ParseFailure("valves_count", f"`valves` must hold {n_branches} fractions, got {len(valves)}")
+    if any(not math.isfinite(v) or v < 0 for v in valves):
+        return ParseFailure("valves_negative", f"`valves` must all be >= 0, got {valves}")
+    total = sum(valves)
+    if abs(total - 1.0) > VALVE_SUM_TOLERANCE:
+        return ParseFailure("valves_sum", f"`valves` must sum to 1 (+-{VALVE_SUM_TOLERANCE}), got {total:.3f}")
+    return CabinetDecision(answer.supply_c + K0, answer.dp_psi * PSI_TO_PA, tuple(v / total for v in valves))
+
+
+def _classify(exc: ValidationError) -> ParseFailure:
+    err = exc.errors()[0]
+    field = ".".join(str(p) for p in err["loc"]) or "answer"
+    if err["type"] in ("greater_than_equal", "less_than_equal"):
+        bounds = {"supply_c": SUPPLY_RANGE_C, "dp_psi": DP_RANGE_PSI}.get(field, ("?", "?"))
+        return ParseFailure("out_of_bounds", f"`{field}` must be in {bounds[0]}..{bounds[1]}, got {err['input']}")
+    return ParseFailure("schema", f"`{field}`: {err['msg']}")

@@ -1,0 +1,69 @@
+"""A backend for any OpenAI-compatible chat endpoint (vLLM, Ollama, llama.cpp server, ``lcmesh.llm.server``).
+
+A batch becomes parallel ``POST {base_url}/chat/completions`` requests (``max_concurrency`` at a
+time; servers like vLLM batch them on their side), greedy (``temperature = 0``). A failed request
+yields a ``Generation`` with ``finish_reason = "error"`` and the reason, never an exception, so the
+controller can fall back per cabinet.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import httpx
+
+from lcmesh.llm.base import Conversation, Generation, LlmBackendSettings
+
+
+class OpenAiCompatBackend:
+    """Chat completions over HTTP with httpx."""
+
+    name = "openai"
+
+    def __init__(self, settings: LlmBackendSettings, *, transport: httpx.BaseTransport | None = None):
+        self.settings = settings
+        self.base_url = settings.base_url.rstrip("/")
+        self.model_id = f"openai:{settings.model}@{self.base_url}"
+        headers = {"Authorization": f"Bearer {settings.api_key}"} if settings.api_key else {}
+        self._client = httpx.Client(timeout=settings.timeout_s, headers=headers, transport=transport)
+
+    def close(self) -> None:
+        self._client.close()
+
+    def chat(
+        self,
+        conversations: Sequence[Conversation],
+        *,
+        max_new_tokens: int,
+        stop: Sequence[str] = (),
+        drafts: Sequence[str | None] | None = None,
+    ) -> list[Generation]:
+        if not conversations:
+            return []
+        workers = min(self.settings.max_concurrency, len(conversations))
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            return list(pool.map(lambda c: self._one(c, max_new_tokens, stop), conversations))
+
+    def _one(self, conversation: Conversation, max_new_tokens: int, stop: Sequence[str]) -> Generation:
+        body = {"model": self.settings.model, "messages": list(conversation), "max_tokens": max_new_tokens,
+                "temperature": 0.0}  # fmt: skip
+        if stop:
+            body["stop"] = list(stop)
+        t0 = time.perf_counter()
+        try:
+            response = self._client.post(f"{self.base_url}/chat/completions", json=body)
+            response.raise_for_status()
+            data = response.json()
+            choice = data["choices"][0]
+            text = choice["message"]["content"] or ""
+            usage = data.get("usage") or {}
+        except (httpx.HTTPError, ValueError, KeyError, IndexError, TypeError) as exc:
+            return Generation("", 0, 0, time.perf_counter() - t0, "error", f"{type(exc).__name__}: {exc}")
+        # OpenAI servers drop the stop string from the text; put it back so both backends read alike
+        if stop and choice.get("finish_reason") == "stop" and not any(text.endswith(s) for s in stop):
+            text += stop[0] if len(stop) == 1 else ""
+        reason = "length" if choice.get("finish_reason") == "length" else "stop"
+        return Generation(text, int(usage.get("prompt_tokens", 0)), int(usage.get("completion_tokens", 0)),
+                          time.perf_counter() - t0, reason)  # fmt: skip

@@ -1,0 +1,106 @@
+"""The LLM controller: batched decisions, strict parsing, per-cabinet fallback that is counted, coarse periods."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lcmesh.llm.base import Generation
+from lcmesh.llm.controller import LlmController
+from lcmesh.llm.io_format import answer_text
+from lcmesh.twin.controllers import Observation, make_controller
+from lcmesh.twin.system import PSI_TO_PA
+
+
+class ScriptedBackend:
+    """A fake at the backend seam: returns scripted answers and records the batches it got."""
+
+    name, model_id = "scripted", "scripted"
+
+    def __init__(self, answers):
+        self.answers, self.batches = answers, []
+
+    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None):
+        self.batches.append(len(conversations))
+        if isinstance(self.answers, Exception):
+            raise self.answers
+        return [Generation(a, 10, 5, 0.01, "stop") for a in self.answers]
+
+
+def _obs(plant, lcopt5, k=0):
+    out = plant.reset() if k == 0 else plant.out
+    power = np.full(lcopt5.n_blade_groups, 60e3)
+    return Observation(out, 291.15, power, 15.0 * k), power
+
+
+GOOD = answer_text(300.15, 30 * PSI_TO_PA, [0.5, 0.3, 0.2])
+
+
+def test_valid_answers_drive_the_cdu_and_garbage_falls_back_per_cabinet(plant, lcopt5):
+    answers = [GOOD, "I think 25 C is good", GOOD, '{"supply_c": 55, "dp_psi": 30, "valves": [0.4, 0.3, 0.3]}', GOOD]
+    backend = ScriptedBackend(answers)
+    ctl = LlmController(lcopt5, backend=backend, fallback="g36", period_steps=1)
+    g36 = make_controller("g36", lcopt5)
+    obs, _ = _obs(plant, lcopt5)
+    action = ctl.act(obs).copy()
+    expected = g36.act(obs)
+    assert backend.batches == [5]  # one batched call for all cabinets
+    for c in (0, 2, 4):
+        assert action.supply_temp_setpoint_k[c] == pytest.approx(300.15, abs=0.01)
+        np.testing.assert_allclose(action.valve_fractions[c], [0.5, 0.3, 0.2], atol=1e-9)
+    for c in (1, 3):  # the fallback's own cabinet action
+        assert action.supply_temp_setpoint_k[c] == pytest.approx(expected.supply_temp_setpoint_k[c])
+        np.testing.assert_allclose(action.valve_fractions[c], expected.valve_fractions[c])
+    np.testing.assert_allclose(action.lw_setpoint_k, expected.lw_setpoint_k)  # towers stay with the fallback
+    s = ctl.stats_snapshot()
+    assert (s["cabinet_decisions"], s["llm_cabinet_actions"], s["fallbacks"]) == (5, 3, 2)
+    assert s["fallback_reasons"] == {"not_json": 1, "out_of_bounds": 1}
+    assert ctl.last_failures[3] and "supply_c" in ctl.last_failures[3]
+
+
+def test_backend_exception_falls_back_for_every_cabinet(plant, lcopt5):
+    ctl = LlmController(lcopt5, backend=ScriptedBackend(ConnectionError("endpoint down")), fallback="g36")
+    obs, _ = _obs(plant, lcopt5)
+    action = ctl.act(obs)
+    assert np.isfinite(action.supply_temp_setpoint_k).all()
+    assert ctl.stats_snapshot()["fallback_reasons"] == {"backend": 5}
+    assert "endpoint down" in ctl.last_failures[0]
+
+
+def test_coarse_period_decides_every_k_steps_and_holds(plant, lcopt5):
+    backend = ScriptedBackend([GOOD] * 5)
+    ctl = LlmController(lcopt5, backend=backend, fallback="g36", period_steps=3)
+    obs, power = _obs(plant, lcopt5)
+    for k in range(7):
+        action = ctl.act(obs)
+        assert action.dp_setpoint_pa[0] == pytest.approx(30 * PSI_TO_PA, abs=1)
+        out = plant.step(power, obs.wet_bulb_k, action)
+        obs = Observation(out, obs.wet_bulb_k, power, 15.0 * (k + 1))
+    assert backend.batches == [5, 5, 5]  # steps 0, 3, 6
+    assert ctl.stats["decisions"] == 3
+    ctl.reset()
+    assert ctl.stats["decisions"] == 0
+
+
+def test_real_model_with_a_tiny_budget_falls_back_and_counts(plant, lcopt5, base_backend):
+    ctl = LlmController(lcopt5, backend=base_backend, fallback="g36", period_steps=1, max_new_tokens=8)
+    g36 = make_controller("g36", lcopt5)
+    obs, _ = _obs(plant, lcopt5)
+    action = ctl.act(obs).copy()
+    s = ctl.stats_snapshot()
+    assert s["cabinet_decisions"] == 5
+    assert s["fallbacks"] == 5  # 8 tokens cannot hold a complete answer
+    assert set(s["fallback_reasons"]) <= {"not_json", "empty", "schema"}
+    np.testing.assert_allclose(action.supply_temp_setpoint_k, g36.act(obs).supply_temp_setpoint_k)
+    assert s["latency_s_last"] > 0
+
+
+def test_registry_builds_the_llm_controller(lcopt5):
+    ctl = make_controller("llm", lcopt5, backend=ScriptedBackend([GOOD] * 5), fallback="g36", period_steps=2)
+    assert ctl.name == "llm" and ctl.period_steps == 2
+    assert "fallback=g36" in ctl.version
+
+
+def test_invalid_period_is_refused(lcopt5):
+    with pytest.raises(ValueError, match="period_steps"):
+        LlmController(lcopt5, backend=ScriptedBackend([]), fallback="g36", period_steps=-1)

@@ -1,0 +1,90 @@
+"""LLM explanations are scored by the explanation evaluator and replaced by the renderer when they fail."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lcmesh.llm.base import Generation
+from lcmesh.llm.explainer import LlmExplainer, explain_messages
+from lcmesh.mesh.tools.explain import render_explanation
+from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS
+from lcmesh.mesh.tools.facts import cabinet_decision_facts
+from lcmesh.twin.controllers import Observation, make_controller
+
+
+class EchoBackend:
+    """A fake at the backend seam: answers with a fixed text, or with the draft it was given."""
+
+    name, model_id = "echo", "echo"
+
+    def __init__(self, text=None):
+        self.text, self.calls = text, []
+
+    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None):
+        self.calls.append((conversations, drafts))
+        text = self.text if self.text is not None else drafts[0]
+        return [Generation(text, 100, 50, 0.01, "stop")]
+
+
+@pytest.fixture
+def decision(plant, lcopt5):
+    g36 = make_controller("g36", lcopt5)
+    out = plant.reset()
+    power = np.full(lcopt5.n_blade_groups, 70e3)
+    previous = g36.act(Observation(out, 291.15, power, 0.0)).copy()
+    out = plant.step(power, 291.15, previous)
+    action = g36.act(Observation(out, 291.15, power, 15.0)).copy()
+    return out, action, previous
+
+
+def test_prompt_lists_the_facts_and_the_level_sections(decision, lcopt5):
+    out, action, previous = decision
+    facts = cabinet_decision_facts(lcopt5, out, action, previous, 291.15, 2)
+    system, user = explain_messages(facts, "detailed")
+    for heading in LEVEL_SECTIONS["detailed"]:
+        assert heading in system["content"]
+    assert "Cabinet 3" in user["content"]
+    assert all(f"{f.name} = {f.display}" in user["content"] for f in facts)
+
+
+def test_a_grounded_llm_text_is_used(decision, lcopt5):
+    out, action, previous = decision
+    backend = EchoBackend()  # writes exactly the draft it is given: the renderer's text
+    r = LlmExplainer(lcopt5, backend).explain(out, action, previous, 291.15, 1, "short")
+    assert r.source == "llm" and r.fallback_reason is None
+    assert r.llm_scores["numeric_grounding"] >= 0.98 and r.llm_scores["coverage"] == 1.0
+    assert backend.calls[0][1] is not None  # the rendering went along as the draft
+
+
+def test_an_ungrounded_llm_text_falls_back_to_the_renderer(decision, lcopt5):
+    out, action, previous = decision
+    bad = "## EXPLANATION\n\nThe valves moved to 0.91, 0.07 and 0.02 because 77.7 kW.\n"
+    explainer = LlmExplainer(lcopt5, EchoBackend(bad))
+    r = explainer.explain(out, action, previous, 291.15, 0, "short")
+    facts = cabinet_decision_facts(lcopt5, out, action, previous, 291.15, 0)
+    assert r.source == "renderer"
+    assert r.text == render_explanation(facts, "short")
+    assert r.fallback_reason in ("numeric_grounding", "coverage")
+    assert explainer.stats["renderer"] == 1 and explainer.stats[f"fallback_{r.fallback_reason}"] == 1
+
+
+def test_unknown_level_is_refused(decision, lcopt5):
+    out, action, previous = decision
+    with pytest.raises(ValueError, match="very_detailed"):
+        LlmExplainer(lcopt5, EchoBackend()).explain(out, action, previous, 291.15, 0, "long")
+
+
+def test_the_real_base_model_is_checked_like_any_other(decision, lcopt5, base_backend):
+    """Untrained, with a small budget, its text cannot cover every action dimension: the renderer stands in."""
+    from lcmesh.llm import explainer as ex
+
+    out, action, previous = decision
+    budget = dict(ex.MAX_NEW_TOKENS)
+    ex.MAX_NEW_TOKENS["short"] = 24
+    try:
+        r = LlmExplainer(lcopt5, base_backend, use_draft=False).explain(out, action, previous, 291.15, 0, "short")
+    finally:
+        ex.MAX_NEW_TOKENS.update(budget)
+    assert r.source == "renderer" and r.fallback_reason is not None
+    assert 0 < r.new_tokens <= 24
