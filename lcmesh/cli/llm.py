@@ -27,7 +27,8 @@ def _distill_llm(config) -> None:
     h, t = manifest["metrics"]["heldout"], manifest["metrics"]["train"]
     console.print(
         f"adapter {manifest['adapter_id']} ({manifest['adapter_bytes'] / 1e6:.1f} MB): loss {t['loss_first']:.3f} -> "
-        f"{t['loss_last10_mean']:.3f}, {t['tokens_per_s']:.0f} tokens/s; held-out CDU R2 {h.get('cdu_r2', float('nan')):.3f}, "
+        f"{t['loss_last10_mean']:.3f}, {t['tokens_per_s']:.0f} tokens/s; "
+        f"held-out CDU R2 {h.get('cdu_r2', float('nan')):.3f}, "
         f"valve R2 {h.get('valve_r2') or float('nan'):.3f}, parse failures {100 * h['parse_failure_rate']:.1f} %"
     )
 

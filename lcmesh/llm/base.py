@@ -35,7 +35,7 @@ class Generation:
     prompt_tokens: int
     new_tokens: int
     seconds: float
-    finish_reason: Literal["stop", "length", "error"]
+    finish_reason: Literal["stop", "length", "timeout", "error"]
     error: str | None = None
 
 
@@ -52,12 +52,14 @@ class LlmBackend(Protocol):
         max_new_tokens: int,
         stop: Sequence[str] = (),
         drafts: Sequence[str | None] | None = None,
+        time_budget_s: float | None = None,
     ) -> list[Generation]:
         """Greedy completions of each conversation (one batch where the backend can batch).
 
         ``stop``: strings that end a completion (kept in the text). ``drafts``: an optional expected
         text per conversation that a backend may use to decode faster (speculation verified by the
         model, so the output is the model's own greedy text); backends may ignore it.
+        ``time_budget_s``: stop decoding after this long (``finish_reason = "timeout"``).
         """
         ...
 

@@ -37,6 +37,7 @@ class LlmControllerSettings(BaseSettings):
     control_period_steps: int = Field(4, ge=1, description="the LLM decides every N plant steps, held in between")
     fallback: str = Field("auto", description="controller for failed cabinets and the towers: auto (ppo, else g36)")
     max_new_tokens: int = Field(64, ge=8, le=512, description="answer budget per cabinet")
+    decision_budget_s: float = Field(10.0, gt=0, description="wall-time budget of one batched decision")
 
 
 def make_fallback(name: str, system: SystemDescription) -> Controller:
@@ -73,6 +74,7 @@ class LlmController:
         if self.period_steps < 1:
             raise ValueError(f"`period_steps` must be >= 1, got {self.period_steps}")
         self.max_new_tokens = max_new_tokens if max_new_tokens is not None else cfg.max_new_tokens
+        self.decision_budget_s = cfg.decision_budget_s
         self.backend = backend if backend is not None else make_backend(backend_settings)
         fb = fallback if fallback is not None else cfg.fallback
         self.fallback = make_fallback(fb, system) if isinstance(fb, str) else fb
@@ -115,8 +117,9 @@ class LlmController:
         conversations = [controller_messages(v) for v in cabinet_views(obs.out, branch_power_w, obs.wet_bulb_k)]
         t0 = time.perf_counter()
         try:
-            generations = self.backend.chat(conversations, max_new_tokens=self.max_new_tokens, stop=[ANSWER_STOP])
-            answers = [(g.text, g.error if g.finish_reason == "error" else None, g.new_tokens) for g in generations]
+            generations = self.backend.chat(conversations, max_new_tokens=self.max_new_tokens, stop=[ANSWER_STOP],
+                                            time_budget_s=self.decision_budget_s)  # fmt: skip
+            answers = [(g.text, _failure(g), g.new_tokens) for g in generations]
             if len(answers) != C:
                 raise RuntimeError(f"backend returned {len(answers)} answers for {C} cabinets")
         except Exception as exc:  # a dead endpoint must not stop control: every cabinet falls back
@@ -138,7 +141,7 @@ class LlmController:
                 decisions.append(parsed)
                 self.last_failures.append(None)
                 continue
-            reason = "backend" if parsed is None else parsed.reason
+            reason = ("timeout" if error == "timeout" else "backend") if parsed is None else parsed.reason
             s["fallbacks"] += 1
             s["fallback_reasons"][reason] += 1
             self.last_failures.append(error if parsed is None else parsed.detail)
@@ -157,3 +160,12 @@ class LlmController:
             "period_steps": self.period_steps,
             "fallback_controller": self.fallback.name,
         }
+
+
+def _failure(gen) -> str | None:
+    """Why a generation cannot be parsed at all: the backend's error, or "timeout"; None when it has an answer."""
+    if gen.finish_reason == "error":
+        return gen.error or "backend error"
+    if gen.finish_reason == "timeout" and not gen.text.rstrip().endswith(ANSWER_STOP):
+        return "timeout"
+    return None

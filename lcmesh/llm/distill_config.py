@@ -24,19 +24,20 @@ class LlmDistillConfig:
     """Synthetic evaluation seed for action R^2 / MAE (never a training seed)."""
     heldout_samples: int = 150
     """Held-out cabinet decisions the adapter is scored on after training."""
-    samples: int = 500
+    samples: int = 640
     """Action samples drawn from the experience by VIPER weight (with replacement)."""
     uniform: bool = False
     """Draw action samples uniformly instead of by VIPER weight (the naive ablation)."""
-    explain_samples: str = "short:16,detailed:4"
-    """Explanation samples per level (the renderer's text for the teacher's action is the target; ~1,300-1,800 tokens each)."""
+    explain_samples: str = "short:40,detailed:10"
+    """Explanation samples per level (the renderer's text for the teacher's action is the target;
+    about 1,300-1,800 tokens each)."""
     explain_steps: int = 480
     """Steps of the explanation rollout (one training trace) the explanation samples are drawn from."""
     quant: str = "nf4"
     """nf4: QLoRA (4-bit base via bitsandbytes); none: plain LoRA (for comparison)."""
     compute_dtype: str = "bfloat16"
     epochs: float = 2.0
-    lr: float = 1e-3
+    lr: float = 2e-3
     r: int = 8
     alpha: int = 16
     batch_size: int = 8

@@ -6,7 +6,8 @@ explanation from them (``lcmesh/prompts/controller_explain.md``: compact ``name 
 grounding 0.98, coverage 1, direction consistency 0.95) or with missing sections is replaced by the
 deterministic rendering, and the reason is counted. The distilled model was trained to write the
 renderer's text, so the rendering is also passed as a draft: the backend verifies it in long runs
-instead of decoding token by token (the text stays the model's own greedy output).
+instead of decoding token by token (the text stays the model's own greedy output). The LLM gets a
+time budget per level (3 s short, 10 s detailed); an unfinished text counts as a ``timeout`` fallback.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
 
 MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
+TIME_BUDGET_S = {"short": 3.0, "detailed": 10.0, "very_detailed": 20.0}  # the LLM's share; then the renderer
 LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
 
 
@@ -57,7 +59,7 @@ class ExplanationResult:
 def explain_messages(facts: list[Fact], level: str) -> list[dict[str, str]]:
     """Chat messages asking for an explanation of the decision behind ``facts`` at ``level``."""
     system, user = load_template("controller_explain")
-    cabinet = next((str(f.value) for f in facts if f.name == "cabinet"), "?")
+    cabinet = next((f.display for f in facts if f.name == "cabinet"), "?")
     values = {"level": LEVEL_WORDS[level], "cabinet": cabinet, "headings": ", ".join(LEVEL_SECTIONS[level]),
               "facts": "\n".join(f"{f.name} = {f.display}" for f in facts)}  # fmt: skip
     return [{"role": "system", "content": Template(system).substitute(values)},
@@ -74,8 +76,10 @@ class LlmExplainer:
         *,
         thresholds: ExplainThresholds = ExplainThresholds(),
         use_draft: bool = True,
+        time_budget_s: dict[str, float] | None = None,
     ):
         self.system, self.backend, self.thresholds, self.use_draft = system, backend, thresholds, use_draft
+        self.time_budget_s = {**TIME_BUDGET_S, **(time_budget_s or {})}
         self.stats: Counter = Counter()
 
     def explain(
@@ -96,8 +100,10 @@ class LlmExplainer:
         t0 = time.perf_counter()
         try:
             gen = self.backend.chat([explain_messages(facts, level)], max_new_tokens=MAX_NEW_TOKENS[level],
-                                    drafts=[rendered] if self.use_draft else None)[0]  # fmt: skip
-            text, error, n_new = gen.text.strip() + "\n", gen.error, gen.new_tokens
+                                    drafts=[rendered] if self.use_draft else None,
+                                    time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
+            text, n_new = gen.text.strip() + "\n", gen.new_tokens
+            error = gen.error or ("timeout" if gen.finish_reason == "timeout" else None)
         except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
             text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
         seconds = time.perf_counter() - t0
@@ -105,7 +111,10 @@ class LlmExplainer:
                                     previous_action=previous_action, wet_bulb_k=wet_bulb_k, level=level)  # fmt: skip
         item = evaluate_record(record)
         scores = {k: float(item[k]) for k in ("numeric_grounding", "coverage", "direction_consistency")}
-        reason = "backend" if error else self._failed_check(scores, item["flags"])
+        if error:
+            reason = "timeout" if error == "timeout" else "backend"
+        else:
+            reason = self._failed_check(scores, item["flags"])
         self.stats["explanations"] += 1
         if reason is None:
             self.stats["llm"] += 1

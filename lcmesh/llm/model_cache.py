@@ -86,7 +86,8 @@ def resolve_model(spec: str) -> Path:
         gguf = path
     else:
         raise ModelNotFoundError(
-            f"`model` must be one of {', '.join(KNOWN_MODELS)}, a folder with config.json, or a .gguf file; got {spec!r}"
+            f"`model` must be one of {', '.join(KNOWN_MODELS)}, a folder with config.json, or a .gguf file; "
+            f"got {spec!r}"
         )
     target = unpacked_dir(gguf)
     if (target / COMPLETE_MARKER).is_file():

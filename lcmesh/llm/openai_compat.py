@@ -39,26 +39,31 @@ class OpenAiCompatBackend:
         max_new_tokens: int,
         stop: Sequence[str] = (),
         drafts: Sequence[str | None] | None = None,
+        time_budget_s: float | None = None,
     ) -> list[Generation]:
         if not conversations:
             return []
         workers = min(self.settings.max_concurrency, len(conversations))
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            return list(pool.map(lambda c: self._one(c, max_new_tokens, stop), conversations))
+            return list(pool.map(lambda c: self._one(c, max_new_tokens, stop, time_budget_s), conversations))
 
-    def _one(self, conversation: Conversation, max_new_tokens: int, stop: Sequence[str]) -> Generation:
+    def _one(self, conversation: Conversation, max_new_tokens: int, stop: Sequence[str],
+             time_budget_s: float | None = None) -> Generation:  # fmt: skip
         body = {"model": self.settings.model, "messages": list(conversation), "max_tokens": max_new_tokens,
                 "temperature": 0.0}  # fmt: skip
         if stop:
             body["stop"] = list(stop)
         t0 = time.perf_counter()
         try:
-            response = self._client.post(f"{self.base_url}/chat/completions", json=body)
+            timeout = self.settings.timeout_s if time_budget_s is None else min(self.settings.timeout_s, time_budget_s)
+            response = self._client.post(f"{self.base_url}/chat/completions", json=body, timeout=timeout)
             response.raise_for_status()
             data = response.json()
             choice = data["choices"][0]
             text = choice["message"]["content"] or ""
             usage = data.get("usage") or {}
+        except httpx.TimeoutException as exc:
+            return Generation("", 0, 0, time.perf_counter() - t0, "timeout", f"{type(exc).__name__}: {exc}")
         except (httpx.HTTPError, ValueError, KeyError, IndexError, TypeError) as exc:
             return Generation("", 0, 0, time.perf_counter() - t0, "error", f"{type(exc).__name__}: {exc}")
         # OpenAI servers drop the stop string from the text; put it back so both backends read alike

@@ -15,6 +15,7 @@ def _result() -> dict:
     return {
         "machine": {"cpu": "cpu", "logical_cpus": 2, "commit": "abc", "date": "today", "load_avg_1m_at_start": 1.0,
                     "load_avg_1m_at_end": 2.0},
+        "config": {"hours": 24.0, "period_steps": 8},
         "load": {"gguf_s": 15.0, "safetensors_cache_s": 0.7, "speedup": 21.0, "model_id": "m+a"},
         "fidelity": {"teacher": "ppo:case7", "n": 10, "parsed": 9, "parse_failure_rate": 0.1,
                      "failure_reasons": {"not_json": 1}, "cdu_r2": 0.91, "valve_r2": 0.8, "valve_mae": [0.1, 0.2, 0.1],
@@ -33,7 +34,7 @@ def _result() -> dict:
 def test_section_has_the_targets_and_the_figure_10_table(tmp_path):
     text = render_llm(_result())
     for piece in ("<= 3", "<= 10", "<= 5", ">= 0.9", "0.910", "| g36 | 90.00", "| tree | not available",
-                  "1 fallbacks to ppo", "15.0 vs 0.70"):
+                  "1 fallbacks to ppo", "15.0 vs 0.70", "--hours 24 --period 8"):
         assert piece in text, piece
     md = tmp_path / "BENCHMARKS.md"
     md.write_text("# Benchmarks\n\n<!-- bench:twin:start -->\nkeep\n<!-- bench:twin:end -->\n")

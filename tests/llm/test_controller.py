@@ -20,11 +20,11 @@ class ScriptedBackend:
     def __init__(self, answers):
         self.answers, self.batches = answers, []
 
-    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None):
+    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None, time_budget_s=None):
         self.batches.append(len(conversations))
         if isinstance(self.answers, Exception):
             raise self.answers
-        return [Generation(a, 10, 5, 0.01, "stop") for a in self.answers]
+        return [a if isinstance(a, Generation) else Generation(a, 10, 5, 0.01, "stop") for a in self.answers]
 
 
 def _obs(plant, lcopt5, k=0):
@@ -65,6 +65,16 @@ def test_backend_exception_falls_back_for_every_cabinet(plant, lcopt5):
     assert np.isfinite(action.supply_temp_setpoint_k).all()
     assert ctl.stats_snapshot()["fallback_reasons"] == {"backend": 5}
     assert "endpoint down" in ctl.last_failures[0]
+
+
+def test_an_answer_cut_by_the_time_budget_counts_as_timeout(plant, lcopt5):
+    cut = Generation('{"supply_c":27.1,"dp_psi":3', 10, 12, 10.0, "timeout")
+    done = Generation(GOOD, 10, 39, 10.0, "timeout")  # finished before the budget ran out: usable
+    ctl = LlmController(lcopt5, backend=ScriptedBackend([cut, done, cut, done, cut]), fallback="g36")
+    obs, _ = _obs(plant, lcopt5)
+    ctl.act(obs)
+    s = ctl.stats_snapshot()
+    assert s["fallback_reasons"] == {"timeout": 3} and s["llm_cabinet_actions"] == 2
 
 
 def test_coarse_period_decides_every_k_steps_and_holds(plant, lcopt5):

@@ -21,7 +21,7 @@ class EchoBackend:
     def __init__(self, text=None):
         self.text, self.calls = text, []
 
-    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None):
+    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None, time_budget_s=None):
         self.calls.append((conversations, drafts))
         text = self.text if self.text is not None else drafts[0]
         return [Generation(text, 100, 50, 0.01, "stop")]
@@ -88,3 +88,12 @@ def test_the_real_base_model_is_checked_like_any_other(decision, lcopt5, base_ba
         ex.MAX_NEW_TOKENS.update(budget)
     assert r.source == "renderer" and r.fallback_reason is not None
     assert 0 < r.new_tokens <= 24
+
+
+def test_an_llm_out_of_time_leaves_the_text_to_the_renderer(decision, lcopt5, base_backend):
+    out, action, previous = decision
+    explainer = LlmExplainer(lcopt5, base_backend, time_budget_s={"short": 0.01})
+    r = explainer.explain(out, action, previous, 291.15, 4, "short")
+    assert r.source == "renderer" and r.fallback_reason == "timeout"
+    assert r.new_tokens <= 2 and r.seconds < 30
+    assert explainer.stats["fallback_timeout"] == 1

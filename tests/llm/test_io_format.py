@@ -18,9 +18,16 @@ def test_prompt_shows_every_observed_number_and_no_placeholder():
     assert system["role"] == "system" and user["role"] == "user"
     text = system["content"] + user["content"]
     assert "$" not in text
-    for shown in ("30.1", "31.2", "29.0", "33.0", "34.5", "50.0", "90.0", "21.0", "24.5", "18.3", "45"):
+    for shown in ("30.1/33.0", "31.2/34.5", "29.0/31.0", "50.0", "90.0", "21.0", "24.5", "18.3", "0.45",
+                  "cabinet 200.0 kW", "hottest 34.5"):
         assert shown in user["content"], shown
     assert "3 fractions" in system["content"]
+
+
+def test_one_blade_group_per_branch_shows_one_temperature():
+    view = CabinetView((30.0, 31.0, 32.0), (30.0, 31.0, 32.0), (10.0, 10.0, 20.0), 21.0, 24.5, 18.3)
+    user = controller_messages(view)[1]["content"]
+    assert "1, 30.0, 10.0, 0.25" in user and "/" not in user
 
 
 def test_good_answer_parses_to_si_and_normalized_valves():

@@ -55,7 +55,7 @@ class HfBackend:
         if threads > 0:
             torch.set_num_threads(threads)
         t0 = time.perf_counter()
-        self.model_dir, self.adapter = Path(model_dir), adapter
+        self.model_dir, self.adapter = Path(model_dir), (Path(adapter) if adapter is not None else None)
         self.tokenizer = AutoTokenizer.from_pretrained(self.model_dir)
         self.tokenizer.padding_side = "left"
         if self.tokenizer.pad_token is None:
@@ -67,7 +67,7 @@ class HfBackend:
             model = PeftModel.from_pretrained(model, str(adapter)).merge_and_unload()
         self.model = model.to(DTYPES[dtype]).eval()
         self.load_seconds = time.perf_counter() - t0
-        self.model_id = f"{_model_name(self.model_dir)}+{_adapter_name(adapter)}"
+        self.model_id = f"{_model_name(self.model_dir)}+{_adapter_name(self.adapter)}"
         self.last_forward_passes = 0
 
     @classmethod
@@ -90,14 +90,17 @@ class HfBackend:
         max_new_tokens: int,
         stop: Sequence[str] = (),
         drafts: Sequence[str | None] | None = None,
+        time_budget_s: float | None = None,
     ) -> list[Generation]:
         if not conversations:
             return []
         if drafts is not None and any(d for d in drafts):
-            return [self._one_with_draft(c, d, max_new_tokens, stop) for c, d in zip(conversations, drafts)]
-        return self._batch(conversations, max_new_tokens, stop)
+            return [self._one_with_draft(c, d, max_new_tokens, stop, time_budget_s)
+                    for c, d in zip(conversations, drafts)]  # fmt: skip
+        return self._batch(conversations, max_new_tokens, stop, time_budget_s)
 
-    def _batch(self, conversations: Sequence[Conversation], max_new_tokens: int, stop: Sequence[str]) -> list[Generation]:
+    def _batch(self, conversations: Sequence[Conversation], max_new_tokens: int, stop: Sequence[str],
+               time_budget_s: float | None = None) -> list[Generation]:  # fmt: skip
         t0 = time.perf_counter()
         ids = [self.prompt_ids(c) for c in conversations]
         batch = self.tokenizer.pad({"input_ids": ids}, padding=True, return_tensors="pt")
@@ -106,16 +109,18 @@ class HfBackend:
         out = self.model.generate(
             **batch, max_new_tokens=max_new_tokens, do_sample=False, stopping_criteria=criteria,
             pad_token_id=self.tokenizer.pad_token_id, eos_token_id=self.tokenizer.eos_token_id,
-            temperature=None, top_p=None, top_k=None,
+            temperature=None, top_p=None, top_k=None, max_time=time_budget_s,
         )  # fmt: skip
         seconds = time.perf_counter() - t0
         self.last_forward_passes = out.shape[1] - width
+        timed_out = time_budget_s is not None and seconds >= time_budget_s
         results = []
         for row, prompt in zip(out[:, width:].tolist(), ids):
-            results.append(self._finish(row, len(prompt), max_new_tokens, stop, seconds))
+            results.append(self._finish(row, len(prompt), max_new_tokens, stop, seconds, timed_out))
         return results
 
-    def _finish(self, row: list[int], n_prompt: int, max_new_tokens: int, stop: Sequence[str], seconds: float):
+    def _finish(self, row: list[int], n_prompt: int, max_new_tokens: int, stop: Sequence[str], seconds: float,
+                timed_out: bool = False):  # fmt: skip
         eos, pad = self.tokenizer.eos_token_id, self.tokenizer.pad_token_id
         if eos in row:
             row, ended = row[: row.index(eos)], True
@@ -127,16 +132,24 @@ class HfBackend:
         cut = _cut_at_stop(text, stop)
         if cut is not None:
             text, ended = cut, True
-        return Generation(text, n_prompt, len(row), seconds, "stop" if ended or len(row) < max_new_tokens else "length")
+        if ended:
+            reason = "stop"
+        else:
+            reason = "timeout" if timed_out else ("stop" if len(row) < max_new_tokens else "length")
+        return Generation(text, n_prompt, len(row), seconds, reason)
 
-    def _one_with_draft(self, conversation: Conversation, draft: str | None, max_new_tokens: int, stop: Sequence[str]):
+    def _one_with_draft(self, conversation: Conversation, draft: str | None, max_new_tokens: int, stop: Sequence[str],
+                        time_budget_s: float | None = None):  # fmt: skip
         t0 = time.perf_counter()
         prompt = self.prompt_ids(conversation)
         draft_ids = self.tokenizer(draft, add_special_tokens=False)["input_ids"] if draft else []
+        deadline = None if time_budget_s is None else t0 + time_budget_s
         new, passes = draft_verified_greedy(self.model, prompt, draft_ids, max_new_tokens,
-                                            self.tokenizer.eos_token_id, self._stop_check(stop))  # fmt: skip
+                                            self.tokenizer.eos_token_id, self._stop_check(stop), deadline)  # fmt: skip
         self.last_forward_passes = passes
-        return self._finish(new, len(prompt), max_new_tokens, stop, time.perf_counter() - t0)
+        seconds = time.perf_counter() - t0
+        timed_out = deadline is not None and t0 + seconds >= deadline
+        return self._finish(new, len(prompt), max_new_tokens, stop, seconds, timed_out)
 
     def _stop_check(self, stop: Sequence[str]):
         if not stop:
@@ -144,8 +157,14 @@ class HfBackend:
         return lambda ids: _cut_at_stop(self.tokenizer.decode(ids[-24:], skip_special_tokens=True), stop) is not None
 
 
-def draft_verified_greedy(model, prompt: list[int], draft: list[int], max_new_tokens: int, eos: int, stopped=None):
-    """Greedy decoding that verifies runs of ``draft`` (or prompt) tokens in one pass each; returns (ids, passes)."""
+def draft_verified_greedy(
+    model, prompt: list[int], draft: list[int], max_new_tokens: int, eos: int, stopped=None,
+    deadline: float | None = None,
+):  # fmt: skip
+    """Greedy decoding that verifies runs of ``draft`` (or prompt) tokens in one pass each; returns (ids, passes).
+
+    ``deadline`` (a ``time.perf_counter()`` value) ends decoding early.
+    """
     from transformers import DynamicCache
 
     cache = DynamicCache()
@@ -153,6 +172,8 @@ def draft_verified_greedy(model, prompt: list[int], draft: list[int], max_new_to
     generated = [int(logits[0, -1].argmax())]
     passes, sources = 1, (draft, prompt)
     while len(generated) < max_new_tokens and generated[-1] != eos and not (stopped and stopped(generated)):
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
         room = max_new_tokens - len(generated)
         proposal = _lookup(generated, sources, min(LOOKUP_SPAN, room - 1)) if room > 1 else []
         step = torch.tensor([[generated[-1], *proposal]])

@@ -39,7 +39,7 @@ class LoraTrainConfig:
     dropout: float = 0.0
     target_modules: tuple[str, ...] = LORA_TARGETS
     epochs: float = 2.0
-    lr: float = 1e-3
+    lr: float = 2e-3
     batch_size: int = 8  # at most this many samples per step ...
     batch_tokens: int = 2048  # ... and at most this many tokens (padded), so long explanations fit in memory
     warmup_frac: float = 0.05
@@ -138,7 +138,10 @@ def train_lora(
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=0.0)
     warmup = max(1, int(cfg.warmup_frac * len(schedule)))
-    lr_at = lambda i: cfg.lr * min(1.0, (i + 1) / warmup) * 0.5 * (1 + math.cos(math.pi * i / len(schedule)))  # noqa: E731
+
+    def lr_at(i: int) -> float:  # linear warmup, cosine decay
+        return cfg.lr * min(1.0, (i + 1) / warmup) * 0.5 * (1 + math.cos(math.pi * i / len(schedule)))
+
     body, head = model.get_base_model().model, model.get_base_model().lm_head
     device = next(params.__iter__()).device
     t0 = time.perf_counter()
