@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from lcmesh.bench.machine import machine_info
-from lcmesh.mesh.tools.maintenance import FAULT_KINDS, DetectorConfig, FaultDetector
+from lcmesh.mesh.tools.maintenance import FAULT_KINDS, DetectorConfig, FaultDetector, ValveExercise
 from lcmesh.twin.controllers import Observation, make_controller
 from lcmesh.twin.fmu_runner import FmuState
 from lcmesh.twin.plant import Plant
@@ -142,10 +142,12 @@ def run_day(
     seed: int,
     config: DetectorConfig | None = None,
     start: FmuState | None = None,
+    valve_exercise_s: float = 0.0,
 ) -> dict:
     """One day under G36 with an optional fault; stops early once the fault is found and has shown.
 
     `start` is the state to spin up from (the FMU's initial state), so a run does not depend on the one before.
+    `valve_exercise_s` > 0 strokes each primary valve that often (:class:`ValveExercise`).
     """
     system = plant.system
     if start is not None:
@@ -163,7 +165,8 @@ def run_day(
     record = dict(trace=trace.name, injection=asdict(injection) if injection else None, location=location,
                   false_alarms=[], other_findings=[], misattributed=[], detected_step=None,
                   manifest_step=None)  # fmt: skip
-    twin_ctrl, healthy_out = None, None
+    twin_ctrl, healthy_out, twin_exercise = None, None, None
+    exercise = ValveExercise(system, period_s=valve_exercise_s)
     k = 0
     for k in range(trace.n_steps):
         wet_bulb = float(trace.wet_bulb_k[k])
@@ -174,12 +177,18 @@ def run_day(
             healthy.restore_state(copied)
             healthy.free_state(copied)
             plant.free_state(state)
-            twin_ctrl, healthy_out = copy.deepcopy(controller), healthy.out
+            twin_ctrl, healthy_out, twin_exercise = copy.deepcopy(controller), healthy.out, copy.deepcopy(exercise)
             plant.set_faults(**injection.faults(system))
         action = controller.act(Observation(out, wet_bulb, power, k * trace.step_s))
+        if exercise.enabled:
+            action = action.copy()
+            exercise.apply(k, action, out)
         out = plant.step(power, wet_bulb, action)
         if twin_ctrl is not None and record["manifest_step"] is None:
             healthy_action = twin_ctrl.act(Observation(healthy_out, wet_bulb, power, k * trace.step_s))
+            if twin_exercise.enabled:
+                healthy_action = healthy_action.copy()
+                twin_exercise.apply(k, healthy_action, healthy_out)
             healthy_out = healthy.step(power, wet_bulb, healthy_action)
             if _manifested(injection.kind, out, healthy_out, system):
                 record["manifest_step"] = k
@@ -270,6 +279,7 @@ def run_bench_maintenance(
     seeds: int | None = None,
     noise_scale: float = 1.0,
     on_run: Callable[[int, int], None] | None = None,
+    valve_exercise_s: float = 600.0,
 ) -> dict:
     """The whole benchmark: fault-free days plus `seeds` injections per (day, fault kind)."""
     system = load_system("lcopt-5")
@@ -290,7 +300,8 @@ def run_bench_maintenance(
         for n, (spec, _, kind) in enumerate(plan):
             trace = traces[spec]
             injection = sample_injection(kind, system, trace.n_steps, rng) if kind else None
-            runs.append(run_day(plant, healthy, trace, injection, noise, seed=int(rng.integers(2**31)), start=initial))
+            runs.append(run_day(plant, healthy, trace, injection, noise, seed=int(rng.integers(2**31)), start=initial,
+                                valve_exercise_s=valve_exercise_s))  # fmt: skip
             if on_run is not None:
                 on_run(n + 1, len(plan))
     wall = time.perf_counter() - t0
@@ -310,6 +321,7 @@ def run_bench_maintenance(
         "controller": "g36",
         "days": [f"{spec} (wet bulb {offset:+.0f} K)" for spec, offset in days],
         "injections_per_day_and_kind": seeds,
+        "valve_exercise_s": valve_exercise_s,
         "noise": asdict(noise),
         "detector_config": DetectorConfig().model_dump(),
         **summary,
@@ -335,7 +347,10 @@ def render_maintenance(r: dict) -> str:
         f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; Python {m['python']}; commit {m['commit']}; "
         f"{m['date']}. {r['system']} under {r['controller']}; days: {', '.join(r['days'])}; "
         f"{r['injections_per_day_and_kind']} injection(s) per day and fault kind at random times (1-20 h), "
-        f"locations and sizes; sensor noise on every reading (docs/maintenance.md). {r['simulated_days']:.1f} "
+        f"locations and sizes; sensor noise on every reading (docs/maintenance.md); "
+        + (f"each primary valve stroked every {r['valve_exercise_s']:g} s (supply setpoint 1.5 K off the measured supply for 1 min, "
+           "`ValveExercise`). " if r.get("valve_exercise_s") else "no valve exercise (passive detection). ")
+        + f"{r['simulated_days']:.1f} "
         f"simulated days in {r['wall_s']:.0f} s.",
         "",
         "| fault | detected | rate | median / p90 delay from injection (min) | rate once it shows | "

@@ -25,6 +25,7 @@ def bench_maintenance(
     quick: Annotated[bool, typer.Option(help="two days, one injection per kind (smoke run)")] = False,
     seeds: Annotated[Optional[int], typer.Option(min=1, max=50, help="injections per day and fault kind")] = None,
     noise_scale: Annotated[float, typer.Option(min=0.0, max=10.0, help="x the default sensor noise (0: none)")] = 1.0,
+    valve_exercise: Annotated[float, typer.Option(min=0.0, help="stroke each primary valve every N s (0: off)")] = 600.0,
 ) -> None:
     """Detection rate, delay and false alarms of the fault detector on lcopt-5 under G36 (simulated days)."""
     from lcmesh.bench.maintenance import render_maintenance, run_bench_maintenance
@@ -33,7 +34,7 @@ def bench_maintenance(
     with progress_bar() as progress:
         task = progress.add_task("maintenance runs", total=None)
         result = run_bench_maintenance(
-            quick=quick, seeds=seeds, noise_scale=noise_scale,
+            quick=quick, seeds=seeds, noise_scale=noise_scale, valve_exercise_s=valve_exercise,
             on_run=lambda n, total: progress.update(task, completed=n, total=total),
         )  # fmt: skip
     table = Table(title="fault detection (lcopt-5, G36)")

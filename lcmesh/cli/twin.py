@@ -80,6 +80,8 @@ def twin_run(
     controller: Annotated[str, typer.Option(help="static, g36, ppo, tree or llm")] = "static",
     policy: Annotated[Optional[str], typer.Option(help="policy file for ppo/tree/llm (default: the shipped one)")] = None,
     wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb (LC-Opt's hardening: 15)")] = 15.0,
+    pool_cells: Annotated[bool, typer.Option(help="ppo/tree: pool this system's tower cells into the count the "
+                                             "policy was trained for")] = False,  # fmt: skip
     json_out: JsonOpt = None,
     plot: Annotated[Optional[Path], typer.Option(help="PNG plot (default: beside --json)")] = None,
 ) -> None:
@@ -94,7 +96,12 @@ def twin_run(
     desc = load_system_or_fail(system)
     try:
         tr = load_trace(trace, desc, wet_bulb_offset_k=wet_bulb_offset)
-        ctrl = make_controller(controller, desc, **({"policy": policy} if policy else {}))
+        kwargs = {"policy": policy} if policy else {}
+        if pool_cells:
+            if controller not in ("ppo", "tree"):
+                fail(f"`--pool-cells` applies to ppo and tree, not {controller!r}")
+            kwargs["pool_cells"] = True
+        ctrl = make_controller(controller, desc, **kwargs)
     except (TraceError, ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     n_steps = min(tr.n_steps, int(round(hours * 3600 / tr.step_s)))

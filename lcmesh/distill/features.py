@@ -5,7 +5,10 @@ Every learned controller (PPO, trees, the LLM) reads the same rows, built from a
 (twin, envs, mesh). Rows are per cabinet and per tower (LC-Opt's state decomposition, sec. 4.1);
 their width depends on B (branches) and m (cells) only, so a policy trained on lcopt-5 runs on any
 C and N with the same B and m. :class:`FeatureLayout` names every column; a policy file carries its
-layout and is refused on a system whose layout differs.
+layout and is refused on a system whose layout differs, with one opt-in exception: ``pool_cells``
+runs a policy trained for m cells per tower on towers of another cell count by area-averaging the
+cells' fan powers onto m virtual cells (:func:`cell_pooling`; the mean fan loading is preserved, the
+per-cell staging detail is not). The branch count B is never adapted.
 
 Cabinet row (4B + 3): branch mean temperatures, branch hottest-blade temperatures, branch powers of
 the coming step (per unit of the design branch load), branch power shares, the CDU's measured supply
@@ -78,25 +81,58 @@ class FeatureLayout:
     def for_system(cls, system: SystemDescription) -> "FeatureLayout":
         return cls(branches=system.cabinets.branches, cells=system.towers.cells)
 
-    def check(self, system: SystemDescription, what: str) -> None:
-        """Refuse a policy whose rows do not fit ``system`` (clear message, never a silent misfit)."""
+    def check(self, system: SystemDescription, what: str, pool_cells: bool = False) -> None:
+        """Refuse a policy whose rows do not fit ``system`` (clear message, never a silent misfit).
+
+        With ``pool_cells`` a differing cell count is accepted (the builder pools the cells).
+        """
         other = FeatureLayout.for_system(system)
-        if other != self:
-            raise ValueError(
-                f"{what} was trained for B={self.branches} branches and m={self.cells} cells per tower "
-                f"(feature layout v{self.version}); system {system.name!r} has B={other.branches}, m={other.cells} "
-                f"(layout v{other.version}). Retrain or distill for this system."
-            )
+        if other == self:
+            return
+        cells_only = other.branches == self.branches and other.version == self.version
+        if cells_only and pool_cells:
+            return
+        hint = " Retrain or distill for this system."
+        if cells_only:
+            hint += f" Or pass pool_cells (CLI --pool-cells) to pool its {other.cells} cells into {self.cells}."
+        raise LayoutMismatch(
+            f"{what} was trained for B={self.branches} branches and m={self.cells} cells per tower "
+            f"(feature layout v{self.version}); system {system.name!r} has B={other.branches}, m={other.cells} "
+            f"(layout v{other.version}).{hint}",
+            cells_only=cells_only,
+        )
+
+
+class LayoutMismatch(ValueError):
+    """A policy's feature layout does not fit the system; ``cells_only`` when only m differs."""
+
+    def __init__(self, message: str, cells_only: bool = False):
+        super().__init__(message)
+        self.cells_only = cells_only
+
+
+def cell_pooling(m_from: int, m_to: int) -> np.ndarray:
+    """(m_to, m_from) area-averaging weights: cell j of m_from covers [j, j+1)/m_from of the tower."""
+    edges_from = np.linspace(0.0, 1.0, m_from + 1)
+    edges_to = np.linspace(0.0, 1.0, m_to + 1)
+    w = np.zeros((m_to, m_from))
+    for i in range(m_to):
+        for j in range(m_from):
+            overlap = min(edges_to[i + 1], edges_from[j + 1]) - max(edges_to[i], edges_from[j])
+            w[i, j] = max(overlap, 0.0) * m_to
+    return w
 
 
 class FeatureBuilder:
     """Builds cabinet rows (C, 4B+3) and tower rows (N, m+6) from observations, into reused buffers."""
 
-    def __init__(self, system: SystemDescription):
+    def __init__(self, system: SystemDescription, layout: FeatureLayout | None = None):
+        """``layout``: the policy's, when it pools another cell count (see :meth:`FeatureLayout.check`)."""
         cab, tw = system.cabinets, system.towers
         self.C, self.B, self.G = cab.count, cab.branches, cab.blade_groups_per_branch
-        self.N, self.m = tw.count, tw.cells
-        self.layout = FeatureLayout.for_system(system)
+        self.layout = layout if layout is not None else FeatureLayout.for_system(system)
+        self.N, self.m, self.system_cells = tw.count, self.layout.cells, tw.cells
+        self.pool = cell_pooling(tw.cells, self.m) if tw.cells != self.m else None
         self.design_branch_w = cab.design_heat_w / self.B
         self.fan_nominal_w = tw.cell.fan_power_nominal_w
         self.cabinet = np.zeros((self.C, len(self.layout.cabinet_columns)), dtype=np.float32)
@@ -119,7 +155,8 @@ class FeatureBuilder:
         N, m = self.N, self.m
         out, x = obs.out, self.tower
         leaving = out["ct_leaving_temp_k"].reshape(N)
-        x[:, 0:m] = out["cell_fan_power_w"].reshape(N, m) / self.fan_nominal_w
+        fans = out["cell_fan_power_w"].reshape(N, self.system_cells) / self.fan_nominal_w
+        x[:, 0:m] = fans if self.pool is None else fans @ self.pool.T
         x[:, m] = (leaving - _T_CENTER_K) / _T_SCALE_K
         x[:, m + 1] = (leaving.mean() - _T_CENTER_K) / _T_SCALE_K
         x[:, m + 2] = (float(np.mean(out["htw_return_temp_k"])) - _T_CENTER_K) / _T_SCALE_K

@@ -206,11 +206,12 @@ class PpoController:
         policy: str | Path | None = None,
         *,
         loaded: tuple[dict[str, AgentNet], PolicyFile] | None = None,
+        pool_cells: bool = False,
     ):
         path = Path(policy) if policy is not None else DEFAULT_POLICY
         self.nets, self.meta = loaded if loaded is not None else load_policy(path)
         layout = FeatureLayout(**self.meta.layout)
-        layout.check(system, f"policy {path}")
+        layout.check(system, f"policy {path}", pool_cells=pool_cells)
         for name, net in self.nets.items():
             if net.spec.rows > 1:
                 expected = system.cabinets.count if name == "cabinet" else system.towers.count
@@ -220,8 +221,10 @@ class PpoController:
                         f"{system.name!r} has {expected}. Only centralized-action policies transfer across sizes."
                     )
         self.version = str(self.meta.manifest.get("version", f"case{self.meta.case}"))
+        if layout.cells != system.towers.cells:
+            self.version += f" (cells pooled {system.towers.cells}->{layout.cells})"
         self.system = system
-        self.features = FeatureBuilder(system)
+        self.features = FeatureBuilder(system, layout)
         self.baseline = G36Controller(system)
         self.towers = TowerSetpoints(system)
         self.last_viper_weights: np.ndarray | None = None

@@ -170,12 +170,14 @@ class TreeController:
 
     name = "tree"
 
-    def __init__(self, system: SystemDescription, policy: str | Path | None = None):
+    def __init__(self, system: SystemDescription, policy: str | Path | None = None, pool_cells: bool = False):
         path = Path(policy) if policy is not None else DEFAULT_TREES
         self.trees, layout, self.manifest = load_trees(path)
-        layout.check(system, f"tree file {path}")
+        layout.check(system, f"tree file {path}", pool_cells=pool_cells)
         self.version = str(self.manifest.get("version", "1"))
-        self.features = FeatureBuilder(system)
+        if layout.cells != system.towers.cells:
+            self.version += f" (cells pooled {system.towers.cells}->{layout.cells})"
+        self.features = FeatureBuilder(system, layout)
         self.towers = TowerSetpoints(system)
         self.baseline = G36Controller(system)
         C, B, N = system.cabinets.count, system.cabinets.branches, system.towers.count

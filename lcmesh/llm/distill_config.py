@@ -24,11 +24,11 @@ class LlmDistillConfig:
     """Synthetic evaluation seed for action R^2 / MAE (never a training seed)."""
     heldout_samples: int = 150
     """Held-out cabinet decisions the adapter is scored on after training."""
-    samples: int = 640
+    samples: int = 1500
     """Action samples drawn from the experience by VIPER weight (with replacement)."""
     uniform: bool = False
     """Draw action samples uniformly instead of by VIPER weight (the naive ablation)."""
-    explain_samples: str = "short:40,detailed:10"
+    explain_samples: str = "short:20,detailed:6"
     """Explanation samples per level (the renderer's text for the teacher's action is the target;
     about 1,300-1,800 tokens each)."""
     explain_steps: int = 480
@@ -36,7 +36,7 @@ class LlmDistillConfig:
     quant: str = "nf4"
     """nf4: QLoRA (4-bit base via bitsandbytes); none: plain LoRA (for comparison)."""
     compute_dtype: str = "bfloat16"
-    epochs: float = 2.0
+    epochs: float = 1.3
     lr: float = 2e-3
     r: int = 8
     alpha: int = 16

@@ -122,7 +122,7 @@ def controller_messages(view: CabinetView) -> list[dict[str, str]]:
 def answer_text(supply_temp_setpoint_k: float, dp_setpoint_pa: float, valve_fractions) -> str:
     """The training target / expected answer for an action, compact JSON at the precision the model writes."""
     valves = ",".join(f"{v:.2f}" for v in np.asarray(valve_fractions, dtype=float))
-    return (f'{{"supply_c":{supply_temp_setpoint_k - K0:.2f},"dp_psi":{dp_setpoint_pa / PSI_TO_PA:.1f},'
+    return (f'{{"supply_c":{supply_temp_setpoint_k - K0:.1f},"dp_psi":{dp_setpoint_pa / PSI_TO_PA:.1f},'
             f'"valves":[{valves}]}}')  # fmt: skip
 
 

@@ -245,6 +245,8 @@ class MeshConfig(_Part):
     mode: Literal["auto", "manual"] = "auto"
     manual_action: ActionModel | None = None
     speed_factor: float = Field(60.0, gt=0, le=100_000)
+    valve_exercise_s: float = Field(0.0, ge=0, le=86_400, description="stroke each CDU primary valve this often, "
+                                    "plant seconds (0: off; lets Maintenance find a valve stuck where it would stay)")
     guardrails: GuardrailLimits = GuardrailLimits()
     llm: LlmSettings = LlmSettings()
 

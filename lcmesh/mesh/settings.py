@@ -124,6 +124,8 @@ class MeshSettings(BaseSettings):
     wet_bulb_offset_k: float = Field(15.0, ge=-50, le=50)
     speed_factor: float = Field(60.0, gt=0, le=100_000, description="simulated seconds per wall second")
     controller: str = "tree"
+    valve_exercise_s: float = Field(0.0, ge=0, le=86_400, description="stroke each CDU primary valve this often "
+                                    "(plant seconds, 0: off); the initial config value")
     data_dir: Path = Path("runs/mesh")
     history_path: Path | None = None
     ui_host: str = "127.0.0.1"

@@ -55,8 +55,21 @@ def test_tree_file_round_trip_is_json_and_refuses_foreign_files(tmp_path, lcopt5
     assert set(np.round(action.lw_setpoint_k - 295.0, 6)) <= {1.5, 8.0}
     data = json.loads(lcopt5.model_dump_json())
     data["towers"]["cells"] = 3
-    with pytest.raises(ValueError, match=r"m=2 cells .* has B=3, m=3"):
+    with pytest.raises(ValueError, match=r"m=2 cells .* has B=3, m=3.*--pool-cells"):
         TreeController(parse_system(data), path)
+    three_cells = parse_system(data)
+    pooled = TreeController(three_cells, path, pool_cells=True)
+    assert pooled.version.endswith("(cells pooled 3->2)")
+    with Plant(three_cells) as plant:
+        out = {k: np.array(v) for k, v in plant.out.items()}
+        out["cell_fan_power_w"] = np.tile([1.0, 0.5, 0.0], three_cells.towers.count) * 1e3
+        rows = pooled.features.tower_rows(Observation(out, 295.0, np.full(three_cells.n_blade_groups, 60e3), 0.0))
+    nominal = three_cells.towers.cell.fan_power_nominal_w
+    # cells [1, 0.5, 0] (kW) over 2 virtual cells: (1 + 0.5/2) / 1.5 and (0.5/2 + 0) / 1.5; the mean is kept
+    np.testing.assert_allclose(rows[:, :2] * nominal / 1e3, [[1.25 / 1.5, 0.25 / 1.5]] * three_cells.towers.count)
+    data["cabinets"]["branches"] = 4
+    with pytest.raises(ValueError, match="Retrain or distill for this system.$"):
+        TreeController(parse_system(data), path, pool_cells=True)
     (tmp_path / "bad.json").write_text('{"format": "something-else"}')
     with pytest.raises(ValueError, match="not an lc-mesh tree file"):
         load_trees(tmp_path / "bad.json")

@@ -43,7 +43,7 @@ def test_answer_text_round_trips_within_its_precision():
     valves = np.array([0.812, 0.127, 0.061])
     d = parse_cabinet_answer(answer_text(294.12, 33.4 * PSI_TO_PA, valves), 3)
     assert isinstance(d, CabinetDecision)
-    assert d.supply_temp_setpoint_k == pytest.approx(294.12, abs=0.006)
+    assert d.supply_temp_setpoint_k == pytest.approx(294.12, abs=0.051)
     assert d.dp_setpoint_pa / PSI_TO_PA == pytest.approx(33.4, abs=0.06)
     np.testing.assert_allclose(d.valve_fractions, valves, atol=0.01)
 

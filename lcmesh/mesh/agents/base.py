@@ -52,7 +52,8 @@ class LatestSlot:
 
 def default_config(settings: MeshSettings) -> MeshConfig:
     """The configuration agents use until the Configuration agent answers (seeded from settings)."""
-    return MeshConfig(controller=settings.controller, speed_factor=settings.speed_factor)
+    return MeshConfig(controller=settings.controller, speed_factor=settings.speed_factor,
+                      valve_exercise_s=settings.valve_exercise_s)
 
 
 class Agent:

@@ -42,9 +42,20 @@ _K = 273.15
 
 
 def build_controller(name: str, system: SystemDescription) -> tuple[Controller, str | None]:
-    """`name`'s controller, or G36 and a note saying why `name` could not be used."""
+    """`name`'s controller, or G36 and a note saying why `name` could not be used.
+
+    A learned policy trained for another cell count per tower runs with its cells pooled (noted).
+    """
+    from lcmesh.distill.features import LayoutMismatch
+
     try:
-        return make_controller(name, system), None
+        try:
+            return make_controller(name, system), None
+        except LayoutMismatch as exc:
+            if not exc.cells_only:
+                raise
+            ctrl = make_controller(name, system, pool_cells=True)
+            return ctrl, f"controller {name!r} runs with tower cells pooled: {ctrl.version}"
     except Exception as exc:  # unknown name, module not written yet, no trained artifact
         why = f"{type(exc).__name__}: {exc}"
         note = f"controller {name!r} is not available ({why}); using {FALLBACK_CONTROLLER!r}"

@@ -4,7 +4,9 @@ Each control period (one 15 s plant step, ``15 / speed_factor`` wall seconds) it
 plant state, waits up to ``deadline_fraction`` of the period for a proposal for that step, passes
 the proposal (or the operator's manual action) through the guardrails, applies it and steps the
 twin. Without a usable proposal it holds the last safe action for ``hold_periods`` periods, then
-falls back to G36, which it runs in shadow every step so it is warm. The step's applied action,
+falls back to G36, which it runs in shadow every step so it is warm. With ``valve_exercise_s`` set
+in the config, the applied action also carries the scheduled primary-valve strokes (recorded as
+clamps with their reason; the last safe action stays the unstroked one). The step's applied action,
 the next plant state and an FMU checkpoint go to history in one transaction before the applied
 action is published.
 
@@ -28,7 +30,8 @@ from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import (
     ActionModel, AppliedAction, CommandReply, FaultRequest, MeshConfig, PlantState, Proposal, utc_now,
 )  # fmt: skip
-from lcmesh.mesh.tools.guardrails import apply_guardrails
+from lcmesh.mesh.tools.guardrails import Clamp, apply_guardrails
+from lcmesh.mesh.tools.maintenance import ValveExercise
 from lcmesh.twin.controllers.g36 import G36Controller
 from lcmesh.twin.plant import PlantAction
 
@@ -50,7 +53,10 @@ class SensorAgent(Agent):
         self._window: _StepWindow | None = None
         self._misses = 0
         self.tally = {"steps": 0, "proposals_applied": 0, "held": 0, "g36_fallback": 0, "rejected": 0,
-                      "late_periods": 0, "stale_proposals": 0, "duplicate_proposals": 0}  # fmt: skip
+                      "late_periods": 0, "stale_proposals": 0, "duplicate_proposals": 0,
+                      "valve_strokes": 0}  # fmt: skip
+        self._exercise: ValveExercise | None = None
+        self._exercise_period = 0.0
         self._tools_declared = False
         self._next_tools_poll = 0.0
 
@@ -246,13 +252,32 @@ class SensorAgent(Agent):
                 latency = (time.perf_counter() - window.published) * 1e3
                 self.tally["proposals_applied"] += 1
         self.last_safe = result.action.copy()
+        action, clamps = self._exercise_valves(state.step, result.action, result.clamps)
         return AppliedAction(
             source=self.agent_id, run_id=twin.run_id, loop=cfg.loop, step=state.step, time_s=state.time_s,
             decision_id=decision_id, source_controller=source, source_version=version,
-            action=ActionModel.from_action(result.action), clamps=result.clamps, fallback=fallback,
+            action=ActionModel.from_action(action), clamps=clamps, fallback=fallback,
             fallback_reason=reason if fallback else None, rejected_reason=rejected, latency_ms=latency,
             late_ms=window.late_s * 1e3,
         )  # fmt: skip
+
+    def _exercise_valves(self, step: int, action: PlantAction, clamps: list) -> tuple[PlantAction, list]:
+        """The action with this step's valve strokes (``valve_exercise_s``), each recorded as a clamp."""
+        period = self.config.valve_exercise_s
+        if period <= 0:
+            return action, clamps
+        if self._exercise is None or self._exercise_period != period:
+            self._exercise = ValveExercise(self.twin.system, period_s=max(period, 4 * self.twin.system.step_s))
+            self._exercise_period = period
+        stroked = action.copy()
+        cabinets = self._exercise.apply(step, stroked, self.twin.plant.out)
+        if not cabinets:
+            return action, clamps
+        self.tally["valve_strokes"] += len(cabinets)
+        extra = [Clamp(field="supply_temp_setpoint_k", index=[c], proposed=float(action.supply_temp_setpoint_k[c]),
+                       applied=float(stroked.supply_temp_setpoint_k[c]), reason="valve exercise (maintenance stroke test)")
+                 for c in cabinets]  # fmt: skip
+        return stroked, [*clamps, *extra]
 
     def _full_payload(self, step: int) -> bool:
         every = self.cfg.payload_every_steps

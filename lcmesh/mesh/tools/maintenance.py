@@ -294,7 +294,9 @@ class FaultDetector:
         if prev is None or dt_s is None:
             return np.zeros(self.C, bool), np.zeros(self.C, bool)
         error = x["supply_temp_measured_k"] - x["applied_supply_setpoint_k"]  # > 0: too warm, the PI opens
-        margin = np.maximum(cfg.valve_error_margin_k, cfg.valve_margin_sigma * self._error_noise.update(error))
+        # noise of the measured supply, not of the error: setpoint steps (G36, a valve stroke) are not noise
+        margin = np.maximum(cfg.valve_error_margin_k,
+                            cfg.valve_margin_sigma * self._error_noise.update(x["supply_temp_measured_k"]))
         beyond = np.maximum(np.abs(error) - cdu.temp_deadband_k - margin, 0.0)
         valve = x["primary_valve"]
         at_stop = ((error > 0) & (valve >= 0.98)) | ((error < 0) & (valve <= cdu.valve_opening_min + 0.02))
@@ -433,3 +435,60 @@ def _estimate(cusum: stats.Cusum, smooth: np.ndarray, fresh_steps: int = 20) -> 
     alarmed = np.maximum(cusum.pos, cusum.neg) > cusum.h
     fresh = np.where(cusum.pos >= cusum.neg, cusum.n_pos, cusum.n_neg) <= fresh_steps
     return np.where(alarmed & fresh, cusum.shift_estimate, smooth)
+
+
+class ValveExercise:
+    """A periodic stroke test of each CDU's primary valve (the maintenance practice of exercising valves).
+
+    A valve stuck where its PI loop would hold it anyway changes nothing the detector can see. Every
+    ``period_s`` each cabinet in turn (start times spread evenly over the period) gets its supply
+    setpoint moved for ``steps`` plant steps: ``size_k`` below the measured supply (more cooling)
+    unless the valve is nearly open or that would leave ``bounds_k``; then ``size_k`` above the
+    measured supply (a valve pinned open by a supply that cannot reach its setpoint must close). A
+    healthy valve follows within a step; a stuck one owes travel and the ``valve_stuck`` check flags
+    it. ``period_s = 0`` turns it off.
+    """
+
+    def __init__(self, system: SystemDescription, period_s: float = 600.0, steps: int = 4, size_k: float = 1.5,
+                 bounds_k: tuple[float, float] = (293.15, 313.15)):  # fmt: skip
+        if period_s < 0 or steps < 1 or size_k <= 0:
+            raise ValueError(f"valve exercise needs period_s >= 0, steps >= 1, size_k > 0; got {period_s}, {steps}, "
+                             f"{size_k}")  # fmt: skip
+        self.C, self.step_s = system.cabinets.count, system.step_s
+        self.period_steps = int(round(period_s / self.step_s))
+        if 0 < self.period_steps < steps:
+            raise ValueError(f"valve exercise period {period_s} s is shorter than its {steps} steps")
+        self.steps, self.size_k, self.bounds_k = steps, size_k, bounds_k
+        self.offsets = (np.arange(self.C) * self.period_steps) // max(self.C, 1)
+        self._target = np.full(self.C, np.nan)
+
+    @property
+    def enabled(self) -> bool:
+        return self.period_steps > 0
+
+    def under_test(self, step: int) -> np.ndarray:
+        """(C,) bool: the cabinets whose valve is being exercised at plant step ``step``."""
+        if not self.enabled:
+            return np.zeros(self.C, dtype=bool)
+        return (step - self.offsets) % self.period_steps < self.steps
+
+    def apply(self, step: int, action: "PlantAction", out: Mapping[str, np.ndarray]) -> list[int]:
+        """Move the supply setpoints of the cabinets under test in ``action`` (in place); their indices.
+
+        ``out``: the plant outputs (``primary_valve``, ``supply_temp_measured_k``). The target is set
+        at a test's first step and held for its duration.
+        """
+        testing = self.under_test(step)
+        if not testing.any():
+            return []
+        starting = testing & (((step - self.offsets) % self.period_steps == 0) | np.isnan(self._target))
+        valve = np.nan_to_num(np.asarray(out["primary_valve"], dtype=float).reshape(self.C), nan=0.5)
+        measured = np.asarray(out["supply_temp_measured_k"], dtype=float).reshape(self.C)
+        measured = np.where(np.isfinite(measured), measured, action.supply_temp_setpoint_k)
+        down = np.minimum(action.supply_temp_setpoint_k, measured) - self.size_k
+        up = np.maximum(action.supply_temp_setpoint_k, measured) + self.size_k
+        target = np.where((valve < 0.85) & (down >= self.bounds_k[0]), down, up)
+        self._target = np.where(starting, np.clip(target, *self.bounds_k), self._target)
+        action.supply_temp_setpoint_k[testing] = self._target[testing]
+        self._target[~testing] = np.nan
+        return np.flatnonzero(testing).tolist()

@@ -76,6 +76,24 @@ def test_out_of_range_proposals_are_clamped_and_malformed_ones_rejected(start_ag
     assert "`valve_fractions` must have shape (5, 3)" in rejected[0]["rejected_reason"]
 
 
+def test_valve_exercise_strokes_each_cabinet_and_audits_it(start_agent, mesh_settings, lcopt5):
+    settings = mesh_settings.model_copy(update={"valve_exercise_s": 4 * 15.0 * lcopt5.cabinets.count})
+    start_agent(ControlAgent, settings)
+    sensor = start_agent(SensorAgent, settings)
+    assert wait_until(lambda: sensor.tally["steps"] >= 24, 30)
+    rows = HistoryReader(settings.history_file).decisions(limit=100)
+    strokes = [c for r in rows for c in r["clamps"] if c["reason"].startswith("valve exercise")]
+    assert {c["index"][0] for c in strokes} == set(range(lcopt5.cabinets.count))
+    assert all(c["field"] == "supply_temp_setpoint_k" and abs(c["applied"] - c["proposed"]) >= 1.5 - 1e-6
+               for c in strokes)  # fmt: skip
+    assert sensor.tally["valve_strokes"] == len(strokes) and history_has_no_gaps(settings)
+
+
+def history_has_no_gaps(settings) -> bool:
+    history = HistoryReader(settings.history_file)
+    return history.step_gaps("plant_states") == [] and history.step_gaps("actions") == []
+
+
 def test_late_joiners_get_the_latest_state(start_agent, client, mesh_settings):
     sensor = start_agent(SensorAgent)
     assert wait_until(lambda: sensor.tally["steps"] >= 2, 20)

@@ -97,6 +97,37 @@ def test_stuck_valve_is_flagged_when_the_load_moves(plant):
     assert f.evidence["supply_error_k"] > 0.45  # it had to be outside the deadband to be seen
 
 
+def test_valve_exercise_finds_a_valve_stuck_where_it_would_stay_and_spares_healthy_ones(plant):
+    """A constant load: the stuck valve would stand still anyway and shows nothing, until it is stroked."""
+    from lcmesh.mesh.tools.maintenance import ValveExercise
+
+    s = plant.system
+    exercise = ValveExercise(s, period_s=600.0)
+    det, rng, noise = FaultDetector(s), np.random.default_rng(4), SensorNoise()
+    base = plant.default_action()
+    base.lw_setpoint_k[:] = 294.0
+    power = np.full(s.n_blade_groups, 60e3)
+    raised, tested, k_stuck = [], set(), 120
+    out = plant.out
+    for k in range(k_stuck + 80):
+        if k == k_stuck:
+            plant.set_faults(valve_stuck=[0, 0, 0, 1, 0])
+        action = base.copy()
+        tested.update(exercise.apply(k, action, out))
+        moved = np.abs(action.supply_temp_setpoint_k - base.supply_temp_setpoint_k)
+        assert np.all((moved == 0) | (moved >= 1.5 - 1e-9)) and np.count_nonzero(moved) <= 1
+        out = plant.step(power, 290.0, action)
+        det.update((k + 1) * STEP_S, noise.apply(out, rng), 290.0, action)
+        raised += [(k, f) for f in det.last_raised if f.kind in FAULT_KINDS]
+    assert tested == set(range(s.cabinets.count))
+    k, f = _first(raised, "valve_stuck")
+    assert [(g.kind, g.location) for _, g in raised] == [("valve_stuck", "cabinet_3")]
+    assert exercise.under_test(k - 3)[3]  # found during its stroke, not by chance
+    with pytest.raises(ValueError, match="shorter than"):
+        ValveExercise(s, period_s=30.0)
+    assert not ValveExercise(s, period_s=0).apply(5, base.copy(), out)
+
+
 @pytest.mark.parametrize(
     "spec,offset_k,noise", [(FRONTIER_DAY, 15.0, 1.0), ("synthetic:1001", 0.0, 1.0), (FRONTIER_DAY, 15.0, 3.0)]
 )

@@ -46,14 +46,15 @@ class _Backend:
 
     model_id = "tiny"
 
-    def __init__(self, text):
-        self.text, self.calls = text, 0
+    def __init__(self, text, finish="stop"):
+        self.text, self.finish, self.calls, self.budget = text, finish, 0, None
 
-    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None):
+    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None, time_budget_s=None):
         from lcmesh.llm.base import Generation
 
         self.calls += 1
-        return [Generation(self.text, 10, 10, 0.01, "stop") for _ in conversations]
+        self.budget = time_budget_s
+        return [Generation(self.text, 10, 10, 0.01, self.finish) for _ in conversations]
 
 
 def test_llm_text_is_kept_only_when_grounded():
@@ -65,6 +66,15 @@ def test_llm_text_is_kept_only_when_grounded():
     bad = LlmPhraser(_Backend("The hottest blade group is at 38.1 °C."))
     out = bad.phrase("q", "rank", draft, facts)
     assert out.text == draft and out.by == "template" and "38.1" in out.note and bad.tally["rejected"] == 1
+
+
+def test_an_llm_text_unfinished_within_the_time_budget_gives_way_to_the_draft():
+    facts = [fact("temp", 36.4, "degC", "hottest blade group", "state")]
+    draft = "The hottest blade group is at 36.4 °C."
+    slow = LlmPhraser(_Backend("Right now the hottest blade group", finish="timeout"), time_budget_s=2.5)
+    out = slow.phrase("q", "rank", draft, facts)
+    assert slow.backend.budget == 2.5 and out.text == draft and out.by == "template"
+    assert "unfinished after 2.5 s" in out.note and slow.tally["timeouts"] == 1
 
 
 def test_llm_text_that_swaps_facts_or_echoes_the_prompt_is_handled():

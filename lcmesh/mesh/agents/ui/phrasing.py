@@ -24,6 +24,7 @@ from lcmesh.mesh.agents.ui.facts import ChatFact, numbers_in, ungrounded_numbers
 
 log = logging.getLogger("lcmesh.mesh.agents.ui")
 PROMPT = "chat_answer"
+TIME_BUDGET_S = 4.0  # the LLM's share of the 5 s answer target; an unfinished text gives way to the draft
 STOP = ("\n\nRewrite", "\nRewrite the", "\nOperator question", "\nQuestion type", "\nFacts:", "\nDraft answer")
 
 
@@ -73,10 +74,11 @@ class LlmPhraser:
     whenever it fails, answers are the template's.
     """
 
-    def __init__(self, backend: Any = None, *, load: Callable[[], Any] | None = None, max_new_tokens: int = 160):
-        self.backend, self.max_new_tokens = backend, max_new_tokens
+    def __init__(self, backend: Any = None, *, load: Callable[[], Any] | None = None, max_new_tokens: int = 160,
+                 time_budget_s: float = TIME_BUDGET_S):  # fmt: skip
+        self.backend, self.max_new_tokens, self.time_budget_s = backend, max_new_tokens, time_budget_s
         self.name = f"llm:{getattr(backend, 'model_id', 'loading')}"
-        self.tally = {"phrased": 0, "rejected": 0, "errors": 0}
+        self.tally = {"phrased": 0, "rejected": 0, "errors": 0, "timeouts": 0}
         self.load_error: str | None = None
         self._lock = threading.Lock()  # one generation at a time on a CPU model
         self.ready = threading.Event()
@@ -105,7 +107,11 @@ class LlmPhraser:
         budget = min(self.max_new_tokens, len(draft) // 3 + 32)  # a rephrasing is about as long as the draft
         try:
             with self._lock:
-                gen = self.backend.chat([messages], max_new_tokens=budget, stop=STOP, drafts=[draft])[0]
+                gen = self.backend.chat([messages], max_new_tokens=budget, stop=STOP, drafts=[draft],
+                                        time_budget_s=self.time_budget_s)[0]  # fmt: skip
+            if gen.finish_reason == "timeout":
+                self.tally["timeouts"] += 1
+                return Phrased(draft, "template", f"LLM text unfinished after {self.time_budget_s:g} s")
             if gen.finish_reason == "error":
                 raise RuntimeError(gen.error or "generation failed")
             text = cut_echo(gen.text)
