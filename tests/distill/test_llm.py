@@ -28,7 +28,7 @@ def test_action_targets_parse_back_to_the_teacher_actions(g36_experience):
         assert messages[-1]["role"] == "user"
         d = parse_cabinet_answer(target, 3)
         assert isinstance(d, CabinetDecision)
-        assert d.supply_temp_setpoint_k == pytest.approx(row[0], abs=0.006)
+        assert d.supply_temp_setpoint_k == pytest.approx(row[0], abs=0.051)  # the answer gives the supply to 0.1 K
         assert d.dp_setpoint_pa == pytest.approx(row[1], abs=0.06 * PSI_TO_PA)
         np.testing.assert_allclose(d.valve_fractions, row[2:], atol=0.011)
 
