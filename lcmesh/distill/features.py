@@ -138,6 +138,11 @@ class FeatureBuilder:
         self.cabinet = np.zeros((self.C, len(self.layout.cabinet_columns)), dtype=np.float32)
         self.tower = np.zeros((self.N, len(self.layout.tower_columns)), dtype=np.float32)
 
+    @property
+    def pooling_note(self) -> str:
+        """What a controller adds to its version when it pools cells (empty when it does not)."""
+        return f" (cells pooled {self.system_cells}->{self.m})" if self.pool is not None else ""
+
     def cabinet_rows(self, obs: Observation) -> np.ndarray:
         C, B = self.C, self.B
         out, x = obs.out, self.cabinet

@@ -221,10 +221,9 @@ class PpoController:
                         f"{system.name!r} has {expected}. Only centralized-action policies transfer across sizes."
                     )
         self.version = str(self.meta.manifest.get("version", f"case{self.meta.case}"))
-        if layout.cells != system.towers.cells:
-            self.version += f" (cells pooled {system.towers.cells}->{layout.cells})"
         self.system = system
         self.features = FeatureBuilder(system, layout)
+        self.version += self.features.pooling_note
         self.baseline = G36Controller(system)
         self.towers = TowerSetpoints(system)
         self.last_viper_weights: np.ndarray | None = None

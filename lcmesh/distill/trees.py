@@ -175,9 +175,8 @@ class TreeController:
         self.trees, layout, self.manifest = load_trees(path)
         layout.check(system, f"tree file {path}", pool_cells=pool_cells)
         self.version = str(self.manifest.get("version", "1"))
-        if layout.cells != system.towers.cells:
-            self.version += f" (cells pooled {system.towers.cells}->{layout.cells})"
         self.features = FeatureBuilder(system, layout)
+        self.version += self.features.pooling_note
         self.towers = TowerSetpoints(system)
         self.baseline = G36Controller(system)
         C, B, N = system.cabinets.count, system.cabinets.branches, system.towers.count

@@ -38,6 +38,13 @@ class Generation:
     finish_reason: Literal["stop", "length", "timeout", "error"]
     error: str | None = None
 
+    @property
+    def failure(self) -> str | None:
+        """Why the text is not a finished answer: the backend's error, ``"timeout"``, or None."""
+        if self.finish_reason == "error":
+            return self.error or "backend error"
+        return "timeout" if self.finish_reason == "timeout" else None
+
 
 class LlmBackend(Protocol):
     """What the controller and the explainer need from a language model."""

@@ -163,9 +163,7 @@ class LlmController:
 
 
 def _failure(gen) -> str | None:
-    """Why a generation cannot be parsed at all: the backend's error, or "timeout"; None when it has an answer."""
-    if gen.finish_reason == "error":
-        return gen.error or "backend error"
-    if gen.finish_reason == "timeout" and not gen.text.rstrip().endswith(ANSWER_STOP):
-        return "timeout"
-    return None
+    """Why a generation cannot be parsed at all; None when it has an answer (one can end just as time runs out)."""
+    if gen.failure == "timeout" and gen.text.rstrip().endswith(ANSWER_STOP):
+        return None
+    return gen.failure

@@ -104,7 +104,7 @@ class LlmExplainer:
                                     drafts=[rendered] if self.use_draft else None,
                                     time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
             text, n_new = gen.text.strip() + "\n", gen.new_tokens
-            error = gen.error or ("timeout" if gen.finish_reason == "timeout" else None)
+            error = gen.failure
         except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
             text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
         seconds = time.perf_counter() - t0

@@ -164,7 +164,7 @@ class FaultDetector:
         self._bias_ewma = stats.Ewma(0.1)
         # residual noise levels (moving range): thresholds scale with them, so noisier sensors do not alarm
         self._pump_noise, self._bias_noise = stats.MovingRangeSigma(0.02), stats.MovingRangeSigma(0.02)
-        self._error_noise = stats.MovingRangeSigma(0.02)
+        self._supply_noise = stats.MovingRangeSigma(0.02)
         self._valve_owed = np.zeros(C)
         self._valve_still = np.zeros(C, dtype=int)
         self._cell_suspect = np.zeros((N, m), dtype=bool)
@@ -296,7 +296,7 @@ class FaultDetector:
         error = x["supply_temp_measured_k"] - x["applied_supply_setpoint_k"]  # > 0: too warm, the PI opens
         # noise of the measured supply, not of the error: setpoint steps (G36, a valve stroke) are not noise
         margin = np.maximum(cfg.valve_error_margin_k,
-                            cfg.valve_margin_sigma * self._error_noise.update(x["supply_temp_measured_k"]))
+                            cfg.valve_margin_sigma * self._supply_noise.update(x["supply_temp_measured_k"]))
         beyond = np.maximum(np.abs(error) - cdu.temp_deadband_k - margin, 0.0)
         valve = x["primary_valve"]
         at_stop = ((error > 0) & (valve >= 0.98)) | ((error < 0) & (valve <= cdu.valve_opening_min + 0.02))
