@@ -32,3 +32,28 @@ def plant(lcopt5):
 
     with Plant(lcopt5) as p:
         yield p
+
+
+def g36_decision_state(system, steps: int):
+    """(out, action, previous action, wet bulb) of G36's decision `steps` steps into the Frontier day (+15 K).
+
+    `out` and the actions are copies, valid after the plant is closed.
+    """
+    import numpy as np
+
+    from lcmesh.twin.controllers import Observation, make_controller
+    from lcmesh.twin.plant import Plant
+    from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+
+    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0)
+    controller = make_controller("g36", system)
+    power = np.zeros(system.n_blade_groups)
+    with Plant(system) as plant:
+        out, previous = plant.out, None
+        for k in range(steps):
+            wet_bulb = float(trace.wet_bulb_k[k])
+            action = controller.act(Observation(out, wet_bulb, trace.blade_power_w(k, out=power), k * 15.0))
+            previous = action.copy()
+            out = plant.step(power, wet_bulb, action)
+        action = controller.act(Observation(out, wet_bulb, power, steps * 15.0)).copy()
+        return {k: np.array(v) for k, v in out.items()}, action, previous, wet_bulb

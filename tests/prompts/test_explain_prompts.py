@@ -4,32 +4,19 @@ from __future__ import annotations
 
 from importlib import resources
 
-import numpy as np
 import pytest
 
 from lcmesh.mesh.tools.explain import PROMPT_NAMES, explanation_messages, load_prompt
 from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS
 from lcmesh.mesh.tools.facts import cabinet_decision_facts
-from lcmesh.twin.controllers import Observation, make_controller
-from lcmesh.twin.plant import Plant
-from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+from tests.conftest import g36_decision_state
 
 
 @pytest.fixture(scope="module")
 def facts(lcopt5):
     """Facts of cabinet 3's decision half an hour into the Frontier day (G36)."""
-    trace = load_trace(FRONTIER_DAY, lcopt5, wet_bulb_offset_k=15.0)
-    controller = make_controller("g36", lcopt5)
-    power = np.zeros(lcopt5.n_blade_groups)
-    with Plant(lcopt5) as plant:
-        out, previous = plant.out, None
-        for k in range(120):
-            wet_bulb = float(trace.wet_bulb_k[k])
-            action = controller.act(Observation(out, wet_bulb, trace.blade_power_w(k, out=power), k * 15.0))
-            previous = action.copy()
-            out = plant.step(power, wet_bulb, action)
-        action = controller.act(Observation(out, wet_bulb, power, 120 * 15.0))
-        return cabinet_decision_facts(lcopt5, out, action, previous, wet_bulb, 2)
+    out, action, previous, wet_bulb = g36_decision_state(lcopt5, 120)
+    return cabinet_decision_facts(lcopt5, out, action, previous, wet_bulb, 2)
 
 
 def test_prompts_ship_as_package_data():

@@ -15,27 +15,14 @@ from lcmesh.mesh.tools.facts import (
     stability_score,
     tower_decision_facts,
 )
-from lcmesh.twin.controllers import Observation, make_controller
-from lcmesh.twin.plant import Plant
+from tests.conftest import g36_decision_state
 from lcmesh.twin.system import PSI_TO_PA
-from lcmesh.twin.traces import FRONTIER_DAY, load_trace
 
 
 @pytest.fixture(scope="module")
 def state(lcopt5):
     """(system, out, action, previous action, wet bulb) after 240 G36 steps; `out` is a copy."""
-    trace = load_trace(FRONTIER_DAY, lcopt5, wet_bulb_offset_k=15.0)
-    controller = make_controller("g36", lcopt5)
-    power = np.zeros(lcopt5.n_blade_groups)
-    with Plant(lcopt5) as plant:
-        out, previous = plant.out, None
-        for k in range(240):
-            wet_bulb = float(trace.wet_bulb_k[k])
-            action = controller.act(Observation(out, wet_bulb, trace.blade_power_w(k, out=power), k * 15.0))
-            previous = action.copy()
-            out = plant.step(power, wet_bulb, action)
-        action = controller.act(Observation(out, wet_bulb, power, 240 * 15.0)).copy()
-        return lcopt5, {k: np.array(v) for k, v in out.items()}, action, previous, wet_bulb
+    return (lcopt5, *g36_decision_state(lcopt5, 240))
 
 
 def test_branch_rankings_follow_the_observation(state):
