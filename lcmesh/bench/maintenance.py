@@ -180,15 +180,11 @@ def run_day(
             twin_ctrl, healthy_out, twin_exercise = copy.deepcopy(controller), healthy.out, copy.deepcopy(exercise)
             plant.set_faults(**injection.faults(system))
         action = controller.act(Observation(out, wet_bulb, power, k * trace.step_s))
-        if exercise.enabled:
-            action = action.copy()
-            exercise.apply(k, action, out)
+        action, _ = exercise.stroked(k, action, out)
         out = plant.step(power, wet_bulb, action)
         if twin_ctrl is not None and record["manifest_step"] is None:
             healthy_action = twin_ctrl.act(Observation(healthy_out, wet_bulb, power, k * trace.step_s))
-            if twin_exercise.enabled:
-                healthy_action = healthy_action.copy()
-                twin_exercise.apply(k, healthy_action, healthy_out)
+            healthy_action, _ = twin_exercise.stroked(k, healthy_action, healthy_out)
             healthy_out = healthy.step(power, wet_bulb, healthy_action)
             if _manifested(injection.kind, out, healthy_out, system):
                 record["manifest_step"] = k

@@ -193,9 +193,12 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     held_idx = resample(held, cfg.heldout_samples, np.random.default_rng(cfg.seed + 1), "cabinet", uniform=True)
     data_seconds = time.perf_counter() - t_start
     model_dir = resolve_model("smollm2-135m-instruct")
+    parent = _parent_adapter(cfg.init_adapter)
     train_cfg = LoraTrainConfig(quant=cfg.quant, compute_dtype=cfg.compute_dtype, r=cfg.r, alpha=cfg.alpha,
                                 epochs=cfg.epochs, lr=cfg.lr, batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens,
-                                seed=cfg.seed, threads=cfg.threads)  # fmt: skip
+                                max_len=cfg.max_len,
+                                seed=cfg.seed, threads=cfg.threads, init_adapter=str(parent or ""))  # fmt: skip
+    parent_manifest = _read_manifest(parent) if parent else None
     log_path, t_train = out / "train_log.jsonl", time.perf_counter()
     log_path.write_text("")
 
@@ -235,9 +238,30 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
         },
         "adapter_bytes": adapter_file.stat().st_size,
     }  # fmt: skip
+    if parent:
+        manifest["parent"] = parent_manifest or {"folder": str(parent)}
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float) + "\n")
     _plot_losses(result.losses, out / "loss.png")
     return manifest
+
+
+def _parent_adapter(spec: str) -> Path | None:
+    """The adapter folder to continue from (``''``: none, fresh LoRA weights)."""
+    from lcmesh.llm.hf.backend import resolve_adapter
+
+    if spec in ("", "none"):
+        return None
+    folder = resolve_adapter(spec)
+    if folder is None:
+        raise FileNotFoundError("`init_adapter` 'default' names the packaged adapter, but none is packaged")
+    return folder
+
+
+def _read_manifest(folder: Path) -> dict | None:
+    try:
+        return json.loads((folder / "manifest.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
 
 
 def _plot_losses(losses: list[float], path: Path) -> None:

@@ -42,18 +42,24 @@ class LlmDistillConfig:
     alpha: int = 16
     batch_size: int = 8
     batch_tokens: int = 2048
+    max_len: int = 3072
+    """Longest sample (prompt + answer tokens) trained on; longer ones are dropped and counted
+    (a very detailed explanation sample is about 2,500 tokens)."""
     seed: int = 0
     threads: int = 0
     """Torch threads (0: torch's default)."""
     wet_bulb_offset_k: float = 15.0
     """Wet-bulb offset of the traces, as in the paper's hot-weather setting and the benchmarks."""
+    init_adapter: str = ""
+    """Continue from this LoRA adapter ('default': the packaged one, or a folder) instead of fresh LoRA
+    weights; its r / alpha win over the ones here, and its manifest is kept as the new one's parent."""
     out: str = ""
     """Output folder (adapter, manifest, metrics, loss plot); empty: lcmesh/artifacts/llm."""
 
     def __post_init__(self) -> None:
         if self.teacher not in TEACHERS:
             raise ValueError(f"`teacher` must be one of {', '.join(TEACHERS)}, got {self.teacher!r}")
-        for name in ("steps_per_trace", "samples", "heldout_samples", "explain_steps"):
+        for name in ("steps_per_trace", "samples", "heldout_samples", "explain_steps", "max_len"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
         self.explain_counts()

@@ -13,9 +13,9 @@ from datetime import datetime, timezone
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from lcmesh.mesh.settings import NAME_PATTERN
+from lcmesh.mesh.settings import NAME_PATTERN, check_valve_exercise_s
 from lcmesh.mesh.tools.guardrails import Clamp, GuardrailLimits
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.plant import PlantAction
@@ -249,6 +249,8 @@ class MeshConfig(_Part):
                                     "plant seconds (0: off; lets Maintenance find a valve stuck where it would stay)")
     guardrails: GuardrailLimits = GuardrailLimits()
     llm: LlmSettings = LlmSettings()
+
+    _valve_exercise = field_validator("valve_exercise_s")(check_valve_exercise_s)
 
 
 CONFIG_SECTIONS = ("all", "controller", "mode", "speed_factor", "guardrails", "llm")

@@ -20,6 +20,15 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+MIN_VALVE_EXERCISE_S = 60.0  # four 15 s plant steps: one stroke must fit in a period
+
+
+def check_valve_exercise_s(value: float) -> float:
+    """0 (off) or at least ``MIN_VALVE_EXERCISE_S``; a shorter period is refused, not silently raised."""
+    if 0 < value < MIN_VALVE_EXERCISE_S:
+        raise ValueError(f"`valve_exercise_s` must be 0 (off) or >= {MIN_VALVE_EXERCISE_S:g} s (a stroke lasts four "
+                         f"15 s plant steps), got {value:g}")  # fmt: skip
+    return value
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 
@@ -140,6 +149,8 @@ class MeshSettings(BaseSettings):
     monitor: MonitorConfig = MonitorConfig()
     configuration: ConfigurationConfig = ConfigurationConfig()
     orchestration: OrchestrationConfig = OrchestrationConfig()
+
+    _valve_exercise = field_validator("valve_exercise_s")(check_valve_exercise_s)
 
     @field_validator("router_endpoints", "listen_endpoints", "router_peers", mode="before")
     @classmethod

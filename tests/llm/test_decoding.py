@@ -23,5 +23,5 @@ def test_draft_does_not_change_the_greedy_text(fp32_backend):
     (wrong,) = fp32_backend.chat([CONV], max_new_tokens=40, drafts=["Fans are loud and tall towers are blue."])
     assert exact.text == plain.text
     assert wrong.text == plain.text
-    assert exact_passes <= 3 < plain_passes  # prefill + one verification of the whole draft (+ its end)
+    assert exact_passes <= 2 < plain_passes  # the prompt and the whole draft in one pass (+ its end, if retokenized)
     assert exact.new_tokens == plain.new_tokens

@@ -71,3 +71,15 @@ def test_action_model_round_trips_and_ragged_valves_become_unusable(plant):
 def test_config_update_needs_an_author():
     with pytest.raises(ValidationError, match="by"):
         ConfigUpdate(changes={"controller": "g36"}, by="")
+
+
+@pytest.mark.parametrize("period", [1.0, 59.0])
+def test_a_valve_exercise_period_shorter_than_one_stroke_is_refused_not_raised(period):
+    from lcmesh.mesh.messages import MeshConfig
+    from lcmesh.mesh.settings import MeshSettings
+
+    for model in (MeshConfig, MeshSettings):
+        with pytest.raises(ValidationError, match="valve_exercise_s` must be 0 \\(off\\) or >= 60 s"):
+            model(valve_exercise_s=period)
+    assert MeshConfig(valve_exercise_s=0).valve_exercise_s == 0
+    assert MeshConfig(valve_exercise_s=60).valve_exercise_s == 60

@@ -31,7 +31,9 @@ hf_logging.set_verbosity_error()
 PACKAGED_ADAPTER = Path(__file__).resolve().parents[2] / "artifacts" / "llm"
 DTYPES = {"bfloat16": torch.bfloat16, "float32": torch.float32}
 LOOKUP_NGRAM = 3  # match the last up-to-3 generated tokens in the draft
-LOOKUP_SPAN = 96  # draft tokens verified per forward pass
+LOOKUP_SPAN_FIRST = 4096  # draft tokens read with the prompt in the first pass (all of an explanation)
+LOOKUP_SPAN_MAX = 512  # later passes: twice the last run while the model agrees, at most this ...
+LOOKUP_SPAN_MIN = 16  # ... and after a miss, twice the agreed run, at least this
 
 
 def resolve_adapter(spec: str | None) -> Path | None:
@@ -44,6 +46,34 @@ def resolve_adapter(spec: str | None) -> Path | None:
     if not (path / "adapter_config.json").is_file():
         raise FileNotFoundError(f"`adapter` {spec!r} is not a LoRA adapter folder (no adapter_config.json)")
     return path
+
+
+def adapter_base_quant(adapter: Path) -> str:
+    """How the base was quantized when ``adapter`` was trained (its manifest's ``config.quant``; 'none' if unknown)."""
+    try:
+        return str(json.loads((adapter / "manifest.json").read_text())["config"]["quant"])
+    except (OSError, KeyError, TypeError, json.JSONDecodeError):
+        return "none"
+
+
+def nf4_roundtrip(model, blocksize: int = 64) -> int:
+    """Give every decoder projection the weights of its nf4 image (bfloat16, quantized, dequantized); the count.
+
+    A QLoRA adapter learned its corrections against the nf4 base; merged into the original weights it
+    drifts (the distilled explanations lost their structure at a handful of tokens). Merged into this
+    image, the model is the one that was trained, and it still runs at bfloat16 speed.
+    """
+    import bitsandbytes.functional as bnbf
+
+    n = 0
+    for layer in model.model.layers:
+        for module in layer.modules():
+            if isinstance(module, torch.nn.Linear):
+                weight = module.weight.data.to(torch.bfloat16)
+                packed, state = bnbf.quantize_4bit(weight, blocksize=blocksize, quant_type="nf4")
+                module.weight.data = bnbf.dequantize_4bit(packed, state).to(module.weight.dtype)
+                n += 1
+    return n
 
 
 class HfBackend:
@@ -61,6 +91,9 @@ class HfBackend:
         if self.tokenizer.pad_token is None:
             self.tokenizer.pad_token = self.tokenizer.eos_token
         model = AutoModelForCausalLM.from_pretrained(self.model_dir, dtype=torch.float32)
+        self.base_quant = adapter_base_quant(self.adapter) if self.adapter is not None else "none"
+        if self.base_quant == "nf4":
+            nf4_roundtrip(model)
         if adapter is not None:
             from peft import PeftModel
 
@@ -163,27 +196,39 @@ def draft_verified_greedy(
 ):  # fmt: skip
     """Greedy decoding that verifies runs of ``draft`` (or prompt) tokens in one pass each; returns (ids, passes).
 
-    ``deadline`` (a ``time.perf_counter()`` value) ends decoding early.
+    The first pass reads the prompt and the draft together, so a model that reproduces its draft
+    needs one pass. Later runs double while the model agrees and shrink to twice the agreed length
+    after a miss. ``deadline`` (a ``time.perf_counter()`` value) ends decoding early.
     """
     from transformers import DynamicCache
 
     cache = DynamicCache()
-    logits = model(input_ids=torch.tensor([prompt]), past_key_values=cache, use_cache=True).logits
-    generated = [int(logits[0, -1].argmax())]
-    passes, sources = 1, (draft, prompt)
-    while len(generated) < max_new_tokens and generated[-1] != eos and not (stopped and stopped(generated)):
-        if deadline is not None and time.perf_counter() >= deadline:
+    generated: list[int] = []
+    passes, sources, span = 0, (draft, prompt), LOOKUP_SPAN_FIRST
+    feed = list(prompt)
+    while len(generated) < max_new_tokens and not (generated and generated[-1] == eos):
+        if stopped and generated and stopped(generated):
+            break
+        if passes and deadline is not None and time.perf_counter() >= deadline:
             break
         room = max_new_tokens - len(generated)
-        proposal = _lookup(generated, sources, min(LOOKUP_SPAN, room - 1)) if room > 1 else []
-        step = torch.tensor([[generated[-1], *proposal]])
-        predicted = model(input_ids=step, past_key_values=cache, use_cache=True).logits[0].argmax(-1).tolist()
+        if not generated:  # the first pass proposes the draft's opening
+            proposal = draft[: min(span, room - 1)]
+        else:
+            proposal = _lookup(generated, sources, min(span, room - 1)) if room > 1 else []
+        logits = model(input_ids=torch.tensor([feed + proposal]), past_key_values=cache, use_cache=True,
+                       logits_to_keep=len(proposal) + 1).logits  # the vocabulary head on the verified positions only
+        predicted = logits[0].argmax(-1).tolist()
         passes += 1
         accepted = 0
         while accepted < len(proposal) and proposal[accepted] == predicted[accepted]:
             accepted += 1
         generated += proposal[:accepted] + [predicted[accepted]]
         cache.crop(len(prompt) + len(generated) - 1 - cache.get_seq_length())  # negative: drop rejected tokens
+        feed = [generated[-1]]
+        if proposal:
+            full = accepted == len(proposal)
+            span = min(LOOKUP_SPAN_MAX, 2 * span if full else max(LOOKUP_SPAN_MIN, 2 * accepted))
         if eos in generated:
             generated = generated[: generated.index(eos) + 1]
     return generated[:max_new_tokens], passes

@@ -46,6 +46,7 @@ class LoraTrainConfig:
     max_len: int = 2048
     seed: int = 0
     threads: int = 0
+    init_adapter: str = ""  # continue from this LoRA adapter folder instead of fresh LoRA weights
 
     def __post_init__(self) -> None:
         if self.quant not in ("nf4", "none"):
@@ -85,8 +86,8 @@ def encode(tokenizer, messages: Sequence[dict], target: str, max_len: int) -> tu
 
 
 def load_for_training(model_dir: Path, cfg: LoraTrainConfig):
-    """The base model (nf4-quantized for QLoRA) wrapped with fresh LoRA adapters."""
-    from peft import LoraConfig, get_peft_model, prepare_model_for_kbit_training
+    """The base model (nf4-quantized for QLoRA) wrapped with fresh LoRA adapters (or ``cfg.init_adapter``'s)."""
+    from peft import LoraConfig, PeftModel, get_peft_model, prepare_model_for_kbit_training
 
     dtype = DTYPES[cfg.compute_dtype]
     if cfg.quant == "nf4":
@@ -99,9 +100,12 @@ def load_for_training(model_dir: Path, cfg: LoraTrainConfig):
     else:
         model = AutoModelForCausalLM.from_pretrained(model_dir, dtype=dtype).to(_device())
     torch.manual_seed(cfg.seed)
-    lora = LoraConfig(r=cfg.r, lora_alpha=cfg.alpha, lora_dropout=cfg.dropout, target_modules=list(cfg.target_modules),
-                      task_type="CAUSAL_LM")  # fmt: skip
-    model = get_peft_model(model, lora)
+    if cfg.init_adapter:
+        model = PeftModel.from_pretrained(model, cfg.init_adapter, is_trainable=True)
+    else:
+        lora = LoraConfig(r=cfg.r, lora_alpha=cfg.alpha, lora_dropout=cfg.dropout,
+                          target_modules=list(cfg.target_modules), task_type="CAUSAL_LM")  # fmt: skip
+        model = get_peft_model(model, lora)
     for p in model.parameters():  # LoRA weights train in float32 whatever the base runs in
         if p.requires_grad:
             p.data = p.data.float()

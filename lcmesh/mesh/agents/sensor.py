@@ -269,8 +269,7 @@ class SensorAgent(Agent):
         if self._exercise is None or self._exercise_period != period:
             self._exercise = ValveExercise(self.twin.system, period_s=max(period, 4 * self.twin.system.step_s))
             self._exercise_period = period
-        stroked = action.copy()
-        cabinets = self._exercise.apply(step, stroked, self.twin.plant.out)
+        stroked, cabinets = self._exercise.stroked(step, action, self.twin.plant.out)
         if not cabinets:
             return action, clamps
         self.tally["valve_strokes"] += len(cabinets)

@@ -472,6 +472,15 @@ class ValveExercise:
             return np.zeros(self.C, dtype=bool)
         return (step - self.offsets) % self.period_steps < self.steps
 
+    def stroked(
+        self, step: int, action: "PlantAction", out: Mapping[str, np.ndarray]
+    ) -> tuple["PlantAction", list[int]]:
+        """A copy of ``action`` with this step's strokes, and the cabinets under test (``action`` itself when none is)."""
+        if not self.under_test(step).any():
+            return action, []
+        copy = action.copy()
+        return copy, self.apply(step, copy, out)
+
     def apply(self, step: int, action: "PlantAction", out: Mapping[str, np.ndarray]) -> list[int]:
         """Move the supply setpoints of the cabinets under test in ``action`` (in place); their indices.
 

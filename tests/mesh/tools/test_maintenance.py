@@ -112,8 +112,9 @@ def test_valve_exercise_finds_a_valve_stuck_where_it_would_stay_and_spares_healt
     for k in range(k_stuck + 80):
         if k == k_stuck:
             plant.set_faults(valve_stuck=[0, 0, 0, 1, 0])
-        action = base.copy()
-        tested.update(exercise.apply(k, action, out))
+        action, cabinets = exercise.stroked(k, base, out)
+        tested.update(cabinets)
+        assert (action is base) == (not cabinets)  # a stroke works on a copy; the proposal stays as it was
         moved = np.abs(action.supply_temp_setpoint_k - base.supply_temp_setpoint_k)
         assert np.all((moved == 0) | (moved >= 1.5 - 1e-9)) and np.count_nonzero(moved) <= 1
         out = plant.step(power, 290.0, action)
@@ -125,7 +126,8 @@ def test_valve_exercise_finds_a_valve_stuck_where_it_would_stay_and_spares_healt
     assert exercise.under_test(k - 3)[3]  # found during its stroke, not by chance
     with pytest.raises(ValueError, match="shorter than"):
         ValveExercise(s, period_s=30.0)
-    assert not ValveExercise(s, period_s=0).apply(5, base.copy(), out)
+    same, none = ValveExercise(s, period_s=0).stroked(5, base, out)
+    assert same is base and none == []
 
 
 @pytest.mark.parametrize(
