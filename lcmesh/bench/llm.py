@@ -33,7 +33,7 @@ class BenchLlmConfig:
     period_steps: int = 4
     adapter: str = "default"
     heldout_samples: int = 100
-    explain_per_level: int = 6
+    explain_per_level: int = 12
     control_repeats: int = 8
     teacher: str = "ppo"
     system: str = "lcopt-5"

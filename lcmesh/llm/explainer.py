@@ -7,8 +7,9 @@ grounding 0.98, coverage 1, direction consistency 0.95) or with missing sections
 deterministic rendering, and the reason is counted. The distilled model was trained to write the
 renderer's text, so the rendering is also passed as a draft: the backend verifies it in long runs
 instead of decoding token by token (the text stays the model's own greedy output). The LLM gets a
-time budget per level (2.6 s short, 9.4 s detailed: the rest of the 3 s / 10 s targets goes to the
-facts, the checks and the rendering); an unfinished text counts as a ``timeout`` fallback.
+time budget per level (2.85 s short, 9.7 s detailed: the rest of the 3 s / 10 s targets goes to the
+facts, the checks and the rendering, about 10 ms; the decoder does not start a pass it expects to
+end after the budget); an unfinished text counts as a ``timeout`` fallback.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
 
 MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
-TIME_BUDGET_S = {"short": 2.6, "detailed": 9.4, "very_detailed": 20.0}  # the LLM's share; then the renderer
+TIME_BUDGET_S = {"short": 2.85, "detailed": 9.7, "very_detailed": 20.0}  # the LLM's share; then the renderer
 LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
 
 

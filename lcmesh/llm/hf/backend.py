@@ -21,6 +21,7 @@ from lcmesh.llm.model_cache import offline_env, quiet_libraries, resolve_model
 offline_env()
 quiet_libraries()
 
+import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from transformers import AutoModelForCausalLM, AutoTokenizer, StoppingCriteria, StoppingCriteriaList  # noqa: E402
 from transformers.utils import logging as hf_logging  # noqa: E402
@@ -177,11 +178,11 @@ class HfBackend:
         prompt = self.prompt_ids(conversation)
         draft_ids = self.tokenizer(draft, add_special_tokens=False)["input_ids"] if draft else []
         deadline = None if time_budget_s is None else t0 + time_budget_s
-        new, passes = draft_verified_greedy(self.model, prompt, draft_ids, max_new_tokens,
-                                            self.tokenizer.eos_token_id, self._stop_check(stop), deadline)  # fmt: skip
+        new, passes, timed_out = draft_verified_greedy(self.model, prompt, draft_ids, max_new_tokens,
+                                                       self.tokenizer.eos_token_id, self._stop_check(stop),
+                                                       deadline)  # fmt: skip
         self.last_forward_passes = passes
         seconds = time.perf_counter() - t0
-        timed_out = deadline is not None and t0 + seconds >= deadline
         return self._finish(new, len(prompt), max_new_tokens, stop, seconds, timed_out)
 
     def _stop_check(self, stop: Sequence[str]):
@@ -194,31 +195,36 @@ def draft_verified_greedy(
     model, prompt: list[int], draft: list[int], max_new_tokens: int, eos: int, stopped=None,
     deadline: float | None = None,
 ):  # fmt: skip
-    """Greedy decoding that verifies runs of ``draft`` (or prompt) tokens in one pass each; returns (ids, passes).
+    """Greedy decoding that verifies runs of ``draft`` (or prompt) tokens in one pass each.
 
     The first pass reads the prompt and the draft together, so a model that reproduces its draft
     needs one pass. Later runs double while the model agrees and shrink to twice the agreed length
-    after a miss. ``deadline`` (a ``time.perf_counter()`` value) ends decoding early.
+    after a miss. ``deadline`` (a ``time.perf_counter()`` value) ends decoding early: a pass expected
+    to end after it is not started. Returns (ids, forward passes, whether time ran out).
     """
     from transformers import DynamicCache
 
     cache = DynamicCache()
     generated: list[int] = []
-    passes, sources, span = 0, (draft, prompt), LOOKUP_SPAN_FIRST
-    feed = list(prompt)
+    passes, sources, span, timings = 0, (draft, prompt), LOOKUP_SPAN_FIRST, []
+    feed, out_of_time = list(prompt), False
     while len(generated) < max_new_tokens and not (generated and generated[-1] == eos):
         if stopped and generated and stopped(generated):
-            break
-        if passes and deadline is not None and time.perf_counter() >= deadline:
             break
         room = max_new_tokens - len(generated)
         if not generated:  # the first pass proposes the draft's opening
             proposal = draft[: min(span, room - 1)]
         else:
             proposal = _lookup(generated, sources, min(span, room - 1)) if room > 1 else []
+        n = len(feed) + len(proposal)
+        t0 = time.perf_counter()
+        if passes and deadline is not None and t0 + _pass_seconds(timings, n) > deadline:
+            out_of_time = True  # this pass would end after the deadline: stop now, not late
+            break
         logits = model(input_ids=torch.tensor([feed + proposal]), past_key_values=cache, use_cache=True,
                        logits_to_keep=len(proposal) + 1).logits  # the vocabulary head on the verified positions only
         predicted = logits[0].argmax(-1).tolist()
+        timings.append((n, time.perf_counter() - t0))
         passes += 1
         accepted = 0
         while accepted < len(proposal) and proposal[accepted] == predicted[accepted]:
@@ -231,7 +237,18 @@ def draft_verified_greedy(
             span = min(LOOKUP_SPAN_MAX, 2 * span if full else max(LOOKUP_SPAN_MIN, 2 * accepted))
         if eos in generated:
             generated = generated[: generated.index(eos) + 1]
-    return generated[:max_new_tokens], passes
+    return generated[:max_new_tokens], passes, out_of_time
+
+
+def _pass_seconds(timings: list[tuple[int, float]], n: int) -> float:
+    """The expected seconds of a forward pass over ``n`` new tokens: a line through the recent passes' timings."""
+    recent = timings[-8:]
+    sizes = {k for k, _ in recent}
+    if len(sizes) < 2:  # one size seen: proportional to it
+        k, seconds = recent[-1]
+        return seconds * n / k
+    slope, intercept = np.polyfit([k for k, _ in recent], [t for _, t in recent], 1)
+    return max(0.0, float(intercept + slope * n))
 
 
 def _lookup(generated: list[int], sources: Sequence[list[int]], span: int) -> list[int]:
