@@ -233,7 +233,8 @@ def _draft_note(e: dict) -> str:
         return ""
     passes = e.get("forward_passes_median")
     return (f", {e['llm_text_as_rendered']} of them word for word the rendering"
-            + (f"; median {passes:g} forward passes for {e['new_tokens_median']:g} tokens" if passes else ""))
+            + (f"; median {passes:g} forward pass{'' if passes == 1 else 'es'} for {e['new_tokens_median']:g} tokens"
+               if passes else ""))
 
 
 def render_llm(r: dict) -> str:

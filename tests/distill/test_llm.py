@@ -118,6 +118,9 @@ def test_qlora_smoke_run_lowers_the_loss(tmp_path):
     assert 1e6 < path.stat().st_size < 10e6
     backend = HfBackend(model_dir, adapter=tmp_path)  # loads and merges the saved adapter
     assert backend.model_id.endswith(f"+{tmp_path.name}")
+    second = LoraTrainConfig(quant="nf4", epochs=1, batch_size=4, lr=1e-4, seed=1, init_adapter=str(tmp_path))
+    _, _, again = train_lora(model_dir, _tiny_samples(16), second)  # a second stage starts where the first ended
+    assert again.losses[0] < 0.5 * np.mean(result.losses[:4])
 
 
 @pytest.mark.slow

@@ -1,0 +1,36 @@
+"""A QLoRA adapter is merged into the base it was trained on: the nf4 image of the weights, not the originals."""
+
+from __future__ import annotations
+
+import json
+
+import torch
+
+from lcmesh.llm.hf.backend import adapter_base_quant, nf4_roundtrip
+
+
+def test_the_nf4_image_is_what_bitsandbytes_trains_on(local_model_dir):
+    import bitsandbytes as bnb
+    from transformers import AutoModelForCausalLM
+
+    from lcmesh.llm.hf.train import LoraTrainConfig, load_for_training
+
+    trained_on = load_for_training(local_model_dir, LoraTrainConfig(quant="nf4"))
+    layer = dict(trained_on.named_modules())["base_model.model.model.layers.3.mlp.down_proj.base_layer"]
+    assert isinstance(layer, bnb.nn.Linear4bit)
+    expected = bnb.functional.dequantize_4bit(layer.weight.data, layer.weight.quant_state).float()
+
+    plain = AutoModelForCausalLM.from_pretrained(local_model_dir, dtype=torch.float32)
+    original = plain.model.layers[3].mlp.down_proj.weight.detach().clone()
+    assert nf4_roundtrip(plain) == 7 * len(plain.model.layers)  # q k v o gate up down in every decoder layer
+    image = plain.model.layers[3].mlp.down_proj.weight
+    torch.testing.assert_close(image, expected, rtol=0, atol=0)
+    assert (image - original).abs().max() > 1e-3  # the image differs from the original weights
+
+
+def test_the_base_quantization_is_read_from_the_adapter_manifest(tmp_path):
+    assert adapter_base_quant(tmp_path) == "none"  # no manifest: a plain LoRA adapter
+    (tmp_path / "manifest.json").write_text(json.dumps({"config": {"quant": "nf4"}}))
+    assert adapter_base_quant(tmp_path) == "nf4"
+    (tmp_path / "manifest.json").write_text("{not json")
+    assert adapter_base_quant(tmp_path) == "none"
