@@ -68,7 +68,7 @@ class UiAgent(Agent):
         hub = EventHub(ui.sse_queue)
         store = LiveStore(system, hub, keep=ui.decisions_kept, state_hz=ui.sse_state_hz)
         gateway = MeshGateway(self.bus, self.site, ui.bus_timeout_s)
-        phraser, note = make_phraser(ui.phraser)
+        phraser, note = make_phraser(ui.phraser, adapter=ui.phraser_adapter)
         sources = ChatSources(system=system, state=lambda: store.state, history=self.history_reader,
                               config=lambda: self.config_doc, agents=store.agents_view, gateway=gateway,
                               applied=store.latest_applied)  # fmt: skip

@@ -31,6 +31,10 @@ class UiSettings(BaseSettings):
     phraser: Literal["template", "llm"] = Field(
         "template", description="who phrases chat answers: the deterministic template, or the LLM backend if present"
     )
+    phraser_adapter: str = Field(
+        "none", description="local LLM only: the phraser's LoRA adapter. 'none' phrases with the base instruct model "
+        "(the distilled adapter learned actions and explanations, not chat); 'default' or a folder uses one"
+    )
     sse_state_hz: float = Field(4.0, gt=0, le=100, description="plant states per second sent to each live page")
     sse_queue: int = Field(256, ge=8, description="events buffered per live client before the oldest are dropped")
     decisions_kept: int = Field(500, ge=10, description="recent decisions and explanations held in memory")

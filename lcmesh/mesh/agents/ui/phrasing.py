@@ -150,11 +150,12 @@ def rejection(text: str, draft: str, facts: list[ChatFact]) -> str | None:
     return None
 
 
-def make_phraser(kind: str, *, wait: bool = False) -> tuple[Phraser, str | None]:
+def make_phraser(kind: str, *, wait: bool = False, adapter: str | None = None) -> tuple[Phraser, str | None]:
     """The phraser `kind` asks for, or the template one and the reason the LLM is not used.
 
     ``llm`` takes the backend ``lcmesh.llm`` configures from ``LCMESH_LLM_*`` (local model or an
-    OpenAI-compatible endpoint); it loads in the background unless `wait`.
+    OpenAI-compatible endpoint); it loads in the background unless `wait`. ``adapter`` replaces
+    the local backend's LoRA adapter (the UI passes ``phraser_adapter``, 'none' by default).
     """
     if kind != "llm":
         return TemplatePhraser(), None
@@ -162,6 +163,8 @@ def make_phraser(kind: str, *, wait: bool = False) -> tuple[Phraser, str | None]
         from lcmesh.llm.base import LlmBackendSettings, make_backend
 
         settings = LlmBackendSettings()
+        if adapter is not None and settings.backend == "local":
+            settings = settings.model_copy(update={"adapter": adapter})
     except Exception as exc:  # the LLM package is absent or its settings are invalid
         reason = f"LLM backend not usable ({type(exc).__name__}: {exc}); phrasing with the template"
         log.warning("%s", reason)
