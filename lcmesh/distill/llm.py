@@ -164,7 +164,7 @@ def head_metrics(y: np.ndarray, p: np.ndarray, scale: np.ndarray, n_branches: in
 def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict:
     """The whole pipeline; returns the manifest it wrote beside the adapter."""
     from lcmesh.distill.ppo import git_commit
-    from lcmesh.llm.hf.backend import HfBackend
+    from lcmesh.llm.hf.backend import HfBackend, read_adapter_manifest
     from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, train_lora
     from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
     from lcmesh.twin.system import load_system
@@ -198,7 +198,7 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
                                 epochs=cfg.epochs, lr=cfg.lr, batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens,
                                 max_len=cfg.max_len,
                                 seed=cfg.seed, threads=cfg.threads, init_adapter=str(parent or ""))  # fmt: skip
-    parent_manifest = _read_manifest(parent) if parent else None
+    parent_manifest = read_adapter_manifest(parent) if parent else None
     log_path, t_train = out / "train_log.jsonl", time.perf_counter()
     log_path.write_text("")
 
@@ -255,13 +255,6 @@ def _parent_adapter(spec: str) -> Path | None:
     if folder is None:
         raise FileNotFoundError("`init_adapter` 'default' names the packaged adapter, but none is packaged")
     return folder
-
-
-def _read_manifest(folder: Path) -> dict | None:
-    try:
-        return json.loads((folder / "manifest.json").read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
 
 
 def _plot_losses(losses: list[float], path: Path) -> None:

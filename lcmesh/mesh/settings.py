@@ -20,6 +20,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 MIN_VALVE_EXERCISE_S = 60.0  # four 15 s plant steps: one stroke must fit in a period
 
 
@@ -29,8 +31,6 @@ def check_valve_exercise_s(value: float) -> float:
         raise ValueError(f"`valve_exercise_s` must be 0 (off) or >= {MIN_VALVE_EXERCISE_S:g} s (a stroke lasts four "
                          f"15 s plant steps), got {value:g}")  # fmt: skip
     return value
-_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
-DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 
 
 def _split_list(value: object) -> object:

@@ -49,12 +49,19 @@ def resolve_adapter(spec: str | None) -> Path | None:
     return path
 
 
+def read_adapter_manifest(adapter: Path) -> dict | None:
+    """The ``manifest.json`` that ``lcmesh distill llm`` wrote beside an adapter; None if absent or unreadable."""
+    try:
+        manifest = json.loads((Path(adapter) / "manifest.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return manifest if isinstance(manifest, dict) else None
+
+
 def adapter_base_quant(adapter: Path) -> str:
     """How the base was quantized when ``adapter`` was trained (its manifest's ``config.quant``; 'none' if unknown)."""
-    try:
-        return str(json.loads((adapter / "manifest.json").read_text())["config"]["quant"])
-    except (OSError, KeyError, TypeError, json.JSONDecodeError):
-        return "none"
+    config = (read_adapter_manifest(adapter) or {}).get("config")
+    return str(config.get("quant", "none")) if isinstance(config, dict) else "none"
 
 
 def nf4_roundtrip(model, blocksize: int = 64) -> int:
@@ -290,10 +297,4 @@ def _model_name(model_dir: Path) -> str:
 def _adapter_name(adapter: Path | None) -> str:
     if adapter is None:
         return "base"
-    manifest = adapter / "manifest.json"
-    if manifest.is_file():
-        try:
-            return str(json.loads(manifest.read_text()).get("adapter_id", adapter.name))
-        except json.JSONDecodeError:
-            pass
-    return adapter.name
+    return str((read_adapter_manifest(adapter) or {}).get("adapter_id", adapter.name))
