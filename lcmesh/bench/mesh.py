@@ -140,7 +140,7 @@ def measure_speed(controller: str, levels: tuple[int, ...], seconds_per_level: f
         settings = _settings(Path(root), "lcopt-5", controller, levels[0], port)
         with _Mesh(settings, say, full_state=True) as mesh:
             mesh.wait_proposals(timeout_s=180.0)
-            config_key = keys.config(settings.site, "all")
+            config_key = keys.configure(settings.site, mesh.bus.role or "operator", "all")
             for level in levels:
                 mesh.bus.request(config_key, ConfigDoc, ConfigUpdate(changes={"speed_factor": level}, by="bench"))
                 settle_s = 3 * 15.0 / level + 0.3

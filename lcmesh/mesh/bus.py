@@ -26,6 +26,7 @@ import numpy as np
 import zenoh
 from pydantic import BaseModel, ValidationError
 
+from lcmesh.mesh import security
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.bus")
@@ -113,20 +114,76 @@ def _base_config(settings: MeshSettings, mode: str) -> zenoh.Config:
     return config
 
 
-def client_config(settings: MeshSettings) -> zenoh.Config:
-    """A client of the routers in `settings.router_endpoints`; no multicast scouting."""
+def _tls(endpoints: list[str]) -> bool:
+    return any(endpoint.startswith("tls/") for endpoint in endpoints)
+
+
+def _endpoint_host(endpoint: str) -> str:
+    address = endpoint.split("/", 1)[1].split("#", 1)[0]
+    return address.rsplit(":", 1)[0].strip("[]")
+
+
+def role_of(source: str) -> str:
+    """The bus role a session named `source` authenticates as: an agent role (``sensor``, ``sensor-2``) or operator."""
+    for candidate in (source, source.split("-", 1)[0]):
+        if candidate in security.ROLES:
+            return candidate
+    return "operator"
+
+
+def client_config(settings: MeshSettings, role: str = "operator") -> zenoh.Config:
+    """A client of the routers in `settings.router_endpoints`, authenticated as `role`; no multicast scouting.
+
+    BusError if the role's password is not there (yet): the router writes the run's secrets on its first start.
+    """
     config = _base_config(settings, "client")
     config.insert_json5("connect/endpoints", json.dumps(settings.router_endpoints))
+    if settings.bus_auth:
+        if settings.bus_password is not None:
+            password = settings.bus_password.get_secret_value()
+        else:
+            password = security.read_password(settings.secrets_path, role)
+        if password is None:
+            raise BusError(f"no bus password for role {role!r}: {security.SecretPaths(settings.secrets_path).password(role)} "
+                           "is missing (the router creates the run's secrets on its first start; or set "
+                           "LCMESH_BUS_PASSWORD)")  # fmt: skip
+        config.insert_json5("transport/auth/usrpwd", json.dumps({"user": role, "password": password}))
+    if _tls(settings.router_endpoints):
+        ca = security.SecretPaths(settings.secrets_path).ca_cert
+        if not ca.exists():
+            raise BusError(f"tls/ endpoint but no CA certificate at {ca} (the router creates it on its first start)")
+        config.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(str(ca)))
     return config
 
 
 def router_config(settings: MeshSettings) -> zenoh.Config:
-    """A router listening on `settings.listen_endpoints`, linked to `settings.router_peers`."""
+    """A router listening on `settings.listen_endpoints`, linked to `settings.router_peers`.
+
+    With ``bus_auth`` (the default) it creates the run's secrets if missing, checks every session's user and
+    password and enforces each role's grants (``security.acl_config``); tls/ endpoints get the run's certificate.
+    """
     config = _base_config(settings, "router")
     config.insert_json5("listen/endpoints", json.dumps(settings.listen_endpoints))
     if settings.router_peers:
         config.insert_json5("connect/endpoints", json.dumps(settings.router_peers))
     config.insert_json5("scouting/gossip/enabled", "false")
+    tls = _tls(settings.listen_endpoints) or _tls(settings.router_peers)
+    if not settings.bus_auth:
+        wide = [e for e in settings.listen_endpoints if _endpoint_host(e) not in ("127.0.0.1", "localhost", "::1")]
+        if wide:
+            raise BusError(f"refusing to listen on {', '.join(wide)} without bus authentication; set LCMESH_BUS_AUTH=true "
+                           "(the default) or listen on 127.0.0.1 only")  # fmt: skip
+        return config
+    hosts = security.default_tls_hosts([_endpoint_host(e) for e in settings.listen_endpoints] + settings.bus_tls_hosts)
+    paths = security.ensure_secrets(settings.secrets_path, tls_hosts=hosts if tls else ())
+    password = security.read_password(settings.secrets_path, security.ROUTER_USER)
+    config.insert_json5("transport/auth/usrpwd", json.dumps({
+        "user": security.ROUTER_USER, "password": password, "dictionary_file": str(paths.dictionary)}))
+    config.insert_json5("access_control", json.dumps(security.acl_config()))
+    if tls:
+        config.insert_json5("transport/link/tls", json.dumps({
+            "listen_private_key": str(paths.router_key), "listen_certificate": str(paths.router_cert),
+            "root_ca_certificate": str(paths.ca_cert)}))
     return config
 
 
@@ -148,6 +205,7 @@ class Bus:
 
     def __init__(self, session, site: str, source: str):
         self.session, self.site, self.source = session, site, source
+        self.role: str | None = None
         self.counters = Counters()
         self._publishers: dict[str, object] = {}
         self._latest: dict[str, bytes] = {}
@@ -168,20 +226,29 @@ class Bus:
 
     # --- opening ------------------------------------------------------------------------------
     @classmethod
-    def connect(cls, settings: MeshSettings, source: str, *, timeout_s: float | None = None) -> "Bus":
-        """A client session, retrying the routers with backoff for up to `timeout_s` (settings default)."""
+    def connect(cls, settings: MeshSettings, source: str, *, role: str | None = None,
+                timeout_s: float | None = None) -> "Bus":  # fmt: skip
+        """A client session as `role` (default: ``role_of(source)``), retrying with backoff for up to `timeout_s`.
+
+        A wrong password or a role the router does not know looks like an unreachable router to zenoh; the
+        error after the timeout says both.
+        """
         limit = settings.connect_timeout_s if timeout_s is None else timeout_s
+        role = role or role_of(source)
         deadline, delay, attempt = time.monotonic() + limit, 0.05, 0
         while True:
             attempt += 1
             try:
-                return cls(zenoh.open(client_config(settings)), settings.site, source)
-            except zenoh.ZError as exc:
+                bus = cls(zenoh.open(client_config(settings, role)), settings.site, source)
+                bus.role = role
+                return bus
+            except (zenoh.ZError, BusError) as exc:
                 if time.monotonic() + delay > deadline:
                     raise BusError(
                         f"could not reach a router at {', '.join(settings.router_endpoints)} after {attempt} "
-                        f"attempts in {limit:.0f} s ({exc}); start one with `lcmesh router` or set "
-                        "LCMESH_ROUTER_ENDPOINTS"
+                        f"attempts in {limit:.0f} s as role {role!r} ({exc}); start one with `lcmesh router` or set "
+                        "LCMESH_ROUTER_ENDPOINTS" + ("; with bus authentication on, check that this role's password "
+                        f"in {settings.secrets_path} is the router's" if settings.bus_auth else "")
                     ) from exc
                 if attempt == 1 or attempt % 10 == 0:
                     log.info("router not reachable yet (%s); retrying", exc)
@@ -192,7 +259,9 @@ class Bus:
     def open_router(cls, settings: MeshSettings, source: str = "router") -> "Bus":
         """A router-mode session (what `lcmesh router` runs)."""
         try:
-            return cls(zenoh.open(router_config(settings)), settings.site, source)
+            bus = cls(zenoh.open(router_config(settings)), settings.site, source)
+            bus.role = security.ROUTER_USER
+            return bus
         except zenoh.ZError as exc:
             raise BusError(f"could not start a router on {', '.join(settings.listen_endpoints)}: {exc}") from exc
 
@@ -361,6 +430,15 @@ class Bus:
             if reply.ok is not None:
                 found.append(str(reply.ok.key_expr))
         return found
+
+    def connected(self) -> bool:
+        """Whether this session reaches a router now (a client's link may be down while the router restarts)."""
+        if self._closed:
+            return False
+        try:
+            return any(True for _ in self.session.info.routers_zid())
+        except Exception:  # a closed or broken session
+            return False
 
     def close(self) -> None:
         if self._closed:

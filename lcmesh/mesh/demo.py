@@ -21,10 +21,14 @@ from lcmesh.mesh.agents.registry import unavailable_reason
 from lcmesh.mesh.bus import Bus, BusError
 from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import AgentEvent, ConfigDoc, ConfigUpdate
-from lcmesh.mesh.processes import Child, agent_child, child_env, router_child, tcp_host_port, wait_for_port
+from lcmesh.mesh.processes import (
+    Child, agent_child, child_env, read_pidfile, router_child, same_process, tcp_host_port, wait_for_port,
+)  # fmt: skip
+from lcmesh.mesh.security import ensure_secrets
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.demo")
+ORCHESTRATOR_GRACE_S = 5.0  # token gone this long with the router reachable: the orchestrator is hung
 
 
 class Demo:
@@ -37,11 +41,14 @@ class Demo:
         self.orchestrator: Child | None = None
         self.bus: Bus | None = None
         self.restarts = {"router": 0, "orchestration": 0}
-        self._orchestrator_lost = threading.Event()
+        self._orchestrator_lost_at: float | None = None
+        self._link_up_since: float | None = None
 
     def start(self) -> None:
         s = self.settings
         s.log_dir.mkdir(parents=True, exist_ok=True)
+        if s.bus_auth:  # before any process needs them; the router would create them too
+            ensure_secrets(s.secrets_path)
         self.router = router_child(self.env, s.log_dir / "router.log").start()
         host, port = tcp_host_port(s.listen_endpoints[0])
         if not wait_for_port(host, port, timeout_s=15.0):
@@ -58,8 +65,8 @@ class Demo:
             self.say(f"note: not following agent events ({exc})")
 
     def _on_orchestrator(self, _key: str, alive: bool) -> None:
-        if not alive:  # dead or hung (a stopped process keeps running but loses its session after the lease)
-            self._orchestrator_lost.set()
+        # dead or hung (a stopped process keeps running but loses its session after the lease), or the router went
+        self._orchestrator_lost_at = None if alive else time.monotonic()
 
     def _on_event(self, event: AgentEvent) -> None:
         first_line = event.detail.splitlines()[0] if event.detail else ""
@@ -67,7 +74,7 @@ class Demo:
 
     def configure(self, changes: dict, stop: threading.Event, timeout_s: float = 60.0) -> None:
         """Apply `changes` through the Configuration agent (retried until it answers)."""
-        key = keys.config(self.settings.site, "all")
+        key = keys.configure(self.settings.site, self.bus.role if self.bus is not None else "operator", "all")
         update = ConfigUpdate(changes=changes, by="lcmesh demo", reason="command-line options")
         deadline = time.monotonic() + timeout_s
         while self.bus is not None and not stop.is_set():
@@ -85,8 +92,9 @@ class Demo:
 
     def watch(self) -> None:
         """Restart the router or the orchestrator if either died or hung (call periodically)."""
-        if self._orchestrator_lost.is_set():
-            self._orchestrator_lost.clear()
+        lost_at = self._orchestrator_lost_at
+        if lost_at is not None and self._orchestrator_hung(lost_at):
+            self._orchestrator_lost_at = None
             if self.orchestrator is not None and self.orchestrator.running():
                 self.say("the orchestrator lost its session (hung?); killing it")
                 self.orchestrator.signal(signal.SIGKILL)
@@ -97,6 +105,19 @@ class Demo:
                 self.say(f"{name} exited with code {child.popen.returncode}; restarting\n{child.log_tail(8)}")
                 child.start()
                 self.restarts["router" if name == "router" else "orchestration"] += 1
+
+    def _orchestrator_hung(self, lost_at: float) -> bool:
+        """Its token has been gone for ORCHESTRATOR_GRACE_S while our own link to the router was up all along.
+
+        A dead or restarted router takes every token with it; the orchestrator reconnects by itself then.
+        """
+        now = time.monotonic()
+        if self.bus is None or not self.bus.connected() or (self.router is not None and not self.router.running()):
+            self._link_up_since = None
+            return False
+        if self._link_up_since is None:
+            self._link_up_since = now
+        return now - max(lost_at, self._link_up_since) > ORCHESTRATOR_GRACE_S
 
     def stop(self) -> None:
         """Orchestrator (and its agents), then the router, then leftovers from pid files."""
@@ -159,14 +180,12 @@ def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes:
 
 
 def _leftover_pids(folder: Path) -> list[int]:
+    """Agents a killed orchestrator started: each pid file's process, if it is still that very process."""
     pids = []
     for path in folder.glob("*.pid") if folder.exists() else []:
-        try:
-            pid = int(path.read_text().strip())
-        except ValueError:
-            continue
-        if _is_agent(pid):
-            pids.append(pid)
+        found = read_pidfile(path)
+        if found is not None and same_process(*found) and _is_agent(found[0]):
+            pids.append(found[0])
         path.unlink(missing_ok=True)
     return pids
 

@@ -79,6 +79,16 @@ def config(site: str, name: str = "all") -> str:
     return f"{site_prefix(site)}/config/{segment(name, 'config name')}"
 
 
+CONFIGURING_ROLES = ("ui", "operator")
+"""Bus roles the router lets reach ``configure/{role}/...`` (docs/mesh.md, Security)."""
+
+
+def configure(site: str, role: str, name: str = "all") -> str:
+    """Where `role` asks the Configuration agent for a change: the router lets only `role` reach it, so the
+    key names the authenticated identity the audit records."""
+    return f"{site_prefix(site)}/configure/{segment(role, 'role')}/{segment(name, 'config name')}"
+
+
 def tool(site: str, name: str) -> str:
     return f"{site_prefix(site)}/tools/{segment(name, 'tool')}"
 
@@ -121,6 +131,7 @@ def all_keys(site: str) -> dict[str, str]:
         "agent_stats": f"{site_prefix(site)}/monitor/stats/{{agent_id}}",
         "events": events(site),
         "config": f"{site_prefix(site)}/config/{{name}}",
+        "configure": f"{site_prefix(site)}/configure/{{role}}/{{name}}",
         "tool": f"{site_prefix(site)}/tools/{{tool}}",
         "cmd": f"{site_prefix(site)}/cmd/{{agent_id}}/{{verb}}",
         "alive": f"{site_prefix(site)}/alive/{{role}}/{{agent_id}}",

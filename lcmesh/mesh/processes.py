@@ -118,3 +118,26 @@ def tcp_host_port(endpoint: str) -> tuple[str, int]:
     address = endpoint.split("/", 1)[1]
     host, _, port = address.rpartition(":")
     return host.strip("[]"), int(port)
+
+
+def start_ticks(pid: int) -> int | None:
+    """The process's start time in clock ticks after boot (/proc/PID/stat field 22): with the pid, its identity."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def same_process(pid: int, start: int | None) -> bool:
+    """Whether `pid` runs now and is the process that started at `start` (not a recycled pid)."""
+    return start is not None and start_ticks(pid) == start
+
+
+def read_pidfile(path: Path) -> tuple[int, int | None] | None:
+    """(pid, start ticks) from a pid file ``"PID START"``; None if it is missing or garbled."""
+    try:
+        fields = path.read_text().split()
+        return int(fields[0]), int(fields[1]) if len(fields) > 1 else None
+    except (OSError, ValueError, IndexError):
+        return None

@@ -16,7 +16,7 @@ import re
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
@@ -54,6 +54,7 @@ def _check_endpoints(field: str, endpoints: list[str]) -> list[str]:
 
 
 EndpointList = Annotated[list[str], NoDecode]
+EndpointHosts = Annotated[list[str], NoDecode]
 
 
 class _Component(BaseModel):
@@ -99,6 +100,32 @@ class MonitorConfig(_Component):
     rss_high_bytes: int = Field(1 << 30, gt=0)
 
 
+class HistoryConfig(_Component):
+    """History retention, applied by the Sensor (docs/mesh.md, History). Ages are wall-clock hours, 0: no age limit."""
+
+    max_mb: float = Field(200.0, ge=0, description="bound on history.sqlite plus its -wal in MB (10^6 bytes); 0: none")
+    keep_payload_hours: float = Field(24.0, ge=0, description="full state JSON and explanation facts; then thinned")
+    keep_states_hours: float = Field(168.0, ge=0, description="plant_states summary rows")
+    keep_decisions_hours: float = Field(720.0, ge=0, description="actions and explanation texts")
+    keep_audit_hours: float = Field(2160.0, ge=0, description="alerts, config changes (the newest is always kept), "
+                                    "agent events")
+    keep_latest_steps: int = Field(240, ge=1, description="newest steps of an open run never thinned or pruned")
+    prune_every_steps: int = Field(10, ge=1, description="a retention pass every N Sensor steps")
+    batch_rows: int = Field(100, ge=1, description="rows per DELETE/UPDATE transaction of a pass")
+    pass_budget_ms: float = Field(20.0, gt=0, description="a pass starts no new batch after this; the rest waits")
+
+    @model_validator(mode="after")
+    def _tiers(self) -> "HistoryConfig":
+        tiers = ("keep_payload_hours", "keep_states_hours", "keep_decisions_hours", "keep_audit_hours")
+        for shorter, longer in zip(tiers, tiers[1:]):
+            a, b = getattr(self, shorter), getattr(self, longer)
+            if b and (not a or a > b):  # 0 is "no limit", the longest
+                raise ValueError(f"`{longer}` must be 0 (no limit) or >= `{shorter}` "
+                                 f"({f'{a:g}' if a else '0, no limit'}), got {b:g}: each tier is kept at least "
+                                 "as long as the one before")  # fmt: skip
+        return self
+
+
 class ConfigurationConfig(_Component):
     """The Configuration agent."""
 
@@ -128,6 +155,13 @@ class MeshSettings(BaseSettings):
     router_peers: EndpointList = Field([], description="other routers a router links to (scale-out)")
     lease_ms: int = Field(1500, ge=200, le=60_000, description="a silent session is dropped after this")
     connect_timeout_s: float = Field(30.0, ge=0, description="agents retry the router this long, then exit")
+    bus_auth: bool = Field(True, description="user/password per role and the router's access control (docs/mesh.md, "
+                           "Security); off only for a router on loopback")
+    secrets_dir: Path | None = Field(None, description="the run's bus passwords and TLS files (default DATA_DIR/secrets)")
+    bus_password: SecretStr | None = Field(None, description="this process's bus password instead of the file in "
+                                           "SECRETS_DIR (an agent on another host)")
+    bus_tls_hosts: EndpointHosts = Field([], description="extra names the router certificate is valid for (tls/ "
+                                         "endpoints)")
     system: str = "lcopt-5"
     trace: str = "frontier-2024-04-07"
     wet_bulb_offset_k: float = Field(15.0, ge=-50, le=50)
@@ -137,6 +171,7 @@ class MeshSettings(BaseSettings):
                                     "(plant seconds, 0: off); the initial config value")
     data_dir: Path = Path("runs/mesh")
     history_path: Path | None = None
+    history: HistoryConfig = HistoryConfig()
     ui_host: str = "127.0.0.1"
     ui_port: int = Field(8000, ge=1, le=65535)
     api_token_file: Path | None = None
@@ -152,7 +187,7 @@ class MeshSettings(BaseSettings):
 
     _valve_exercise = field_validator("valve_exercise_s")(check_valve_exercise_s)
 
-    @field_validator("router_endpoints", "listen_endpoints", "router_peers", mode="before")
+    @field_validator("router_endpoints", "listen_endpoints", "router_peers", "bus_tls_hosts", mode="before")
     @classmethod
     def _lists(cls, value: object) -> object:
         return _split_list(value)
@@ -172,6 +207,11 @@ class MeshSettings(BaseSettings):
         return self.history_path or self.data_dir / "history.sqlite"
 
     @property
+    def secrets_path(self) -> Path:
+        """The run's bus secrets (``secrets_dir``, else ``data_dir/secrets``)."""
+        return self.secrets_dir or self.data_dir / "secrets"
+
+    @property
     def log_dir(self) -> Path:
         return self.data_dir / "logs"
 
@@ -179,7 +219,7 @@ class MeshSettings(BaseSettings):
         """These settings as ``LCMESH_*`` variables, for child processes (nested configs as JSON)."""
         env = {}
         for name, value in self:
-            if value is None:
+            if value is None or name == "bus_password":  # a secret never travels in a child's environment
                 continue
             if isinstance(value, BaseModel):
                 text = value.model_dump_json()

@@ -59,6 +59,22 @@ def client(mesh_settings, router):
 
 
 @pytest.fixture
+def bus_as(mesh_settings, router):
+    """bus_as(role) -> a client session authenticated as that bus role (closed after the test)."""
+    from lcmesh.mesh.bus import Bus
+
+    opened = []
+
+    def connect(role: str, source: str | None = None):
+        opened.append(Bus.connect(mesh_settings, source or f"{role}-tester", role=role))
+        return opened[-1]
+
+    yield connect
+    for bus in opened:
+        bus.close()
+
+
+@pytest.fixture
 def start_agent(mesh_settings, router):
     """start_agent(AgentClass, settings=None, agent_id=None) -> a started in-process agent on its own session."""
     from lcmesh.mesh.bus import Bus

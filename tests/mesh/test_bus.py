@@ -13,6 +13,12 @@ from lcmesh.mesh.messages import AgentEvent, CommandReply
 from tests.mesh.conftest import make_settings, wait_until
 
 
+@pytest.fixture
+def mesh_settings(tmp_path):
+    """The bus's own mechanics, on any key: without authentication (tests/mesh/test_security.py has the router's ACL)."""
+    return make_settings(tmp_path / "mesh", bus_auth=False)
+
+
 def _event(detail="x"):
     return AgentEvent(source="tester", kind="started", role="sensor", agent_id="sensor", detail=detail)
 
@@ -112,7 +118,7 @@ def test_liveliness_shows_a_token_coming_and_going(client, mesh_settings):
 
 
 def test_connect_fails_clearly_without_a_router(tmp_path):
-    settings = make_settings(tmp_path)
+    settings = make_settings(tmp_path, bus_auth=False)
     t0 = time.monotonic()
     with pytest.raises(BusError, match=r"could not reach a router at tcp/127\.0\.0\.1:\d+ .*lcmesh router"):
         Bus.connect(settings, "lonely", timeout_s=0.5)
@@ -120,7 +126,7 @@ def test_connect_fails_clearly_without_a_router(tmp_path):
 
 
 def test_connect_retries_until_the_router_comes_up(tmp_path):
-    settings = make_settings(tmp_path)
+    settings = make_settings(tmp_path)  # with authentication: the router writes the secrets the client waits for
     result = {}
 
     def connect():

@@ -20,6 +20,7 @@ import psutil
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.bus import Bus, Declared
+from lcmesh.mesh.history import HistoryReader
 from lcmesh.mesh.messages import AgentEvent, AgentStats, ConfigDoc, MeshConfig
 from lcmesh.mesh.settings import MeshSettings
 
@@ -168,11 +169,42 @@ class Agent:
         def handle(doc: ConfigDoc) -> None:
             if self.config_doc is not None and doc.version <= self.config_doc.version:
                 return
+            problem = self._unaudited(doc)
+            if problem:
+                log.warning("ignoring config version %d: %s", doc.version, problem)
+                self.emit_event("warning", f"ignored config version {doc.version}: {problem}")
+                return
             old, self.config_doc, self.config = self.config, doc, doc.config
             if on_change is not None:
                 on_change(old, doc.config)
 
         self.subscribe(keys.config(self.site, "all"), ConfigDoc, handle, latest=True)
+
+    def _unaudited(self, doc: ConfigDoc) -> str | None:
+        """Why `doc` is not the Configuration agent's (not in the audited history), or None.
+
+        The router already lets only the Configuration agent publish ``config/all``; this second check
+        needs the history file, so an agent on a host without it relies on the router alone.
+        """
+        path = self.settings.history_file
+        if not path.exists():
+            return None
+        try:
+            reader = HistoryReader(path)
+            try:
+                rows = reader.config_changes(limit=20)
+            finally:
+                reader.close()
+        except Exception as exc:  # an unreadable history must not stop configuration
+            log.warning("could not check config version %d against history: %s", doc.version, exc)
+            return None
+        for row in rows:
+            if row["version"] == doc.version:
+                if row["config"] == doc.config.model_dump(mode="json"):
+                    return None
+                return "its content differs from the audited version in history"
+        latest = rows[0]["version"] if rows else None
+        return f"history has no such version (latest audited: {latest})"
 
     def _on_handler_error(self, where: str, exc: BaseException) -> None:
         now = time.monotonic()

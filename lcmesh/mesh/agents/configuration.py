@@ -1,10 +1,12 @@
 """The Configuration agent: a versioned, validated, persisted configuration behind queryables.
 
 ``lcmesh/{site}/config/{name}`` for ``name`` in all, controller, mode, speed_factor, guardrails,
-llm. A GET without payload answers the current ``ConfigDoc`` (every section answers the whole
-document, so a reader always sees the version). A GET with a ``ConfigUpdate`` payload changes
-the configuration: ``changes`` is a partial MeshConfig (nested dicts merge); through a section's
-key only that section may change. The new version is validated (pydantic, the controller
+llm: a GET answers the current ``ConfigDoc`` (every section answers the whole document, so a
+reader always sees the version). Changes go to ``lcmesh/{site}/configure/{role}/{name}``, a GET
+with a ``ConfigUpdate`` payload: ``changes`` is a partial MeshConfig (nested dicts merge); through
+a section's key only that section may change. The router lets only the role named in the key
+reach it (``ui`` and ``operator``), so the audit's ``changed_by`` starts with that authenticated
+role; the update's own ``by`` (who the UI vouches for) follows it. The new version is validated (pydantic, the controller
 registry, the guardrails against the plant), written to the store file atomically, audited in
 history's ``config_changes`` with the diff, and published on ``config/all``. Errors name the
 field and what would be valid.
@@ -15,7 +17,6 @@ from __future__ import annotations
 import difflib
 import json
 import logging
-import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,8 @@ from pydantic import ValidationError
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent, default_config
 from lcmesh.mesh.bus import QueryError
-from lcmesh.mesh.history import HistoryWriter
+from lcmesh.mesh.history import HistoryReader, HistoryWriter
+from lcmesh.mesh.security import write_secret as write_private
 from lcmesh.mesh.messages import CONFIG_SECTIONS, ConfigDoc, ConfigUpdate, MeshConfig
 from lcmesh.mesh.tools.guardrails import check_action
 from lcmesh.twin.system import SystemDescription, load_system
@@ -74,11 +76,32 @@ class ConfigStore:
         self._lock = threading.Lock()
         if self.path.exists():
             self.doc = ConfigDoc.model_validate_json(self.path.read_text())
+            self._check_against_history()
         else:
             self.doc = ConfigDoc(source="configuration", version=1, config=self.validate(seed.model_dump()),
                                  changed_by="settings",
                                  reason="initial configuration from LCMESH_* settings")  # fmt: skip
             self._persist(self.doc, {"*": [None, "initial"]})
+
+    def _check_against_history(self) -> None:
+        """Versions never go back and never jump: the audited history is the reference, not the file alone."""
+        if self.history is None or not Path(self.history.path).exists():
+            return
+        reader = HistoryReader(self.history.path)
+        try:
+            rows = reader.config_changes(limit=1)
+        finally:
+            reader.close()
+        if not rows:
+            return
+        audited = int(rows[0]["version"])
+        if self.doc.version != audited:
+            log.warning("%s holds version %d but history's latest audited version is %d; using history's",
+                        self.path, self.doc.version, audited)  # fmt: skip
+            config = self.validate(rows[0]["config"])
+            self.doc = ConfigDoc(source="configuration", version=audited, config=config,
+                                 changed_by=rows[0].get("changed_by") or "history", reason=rows[0].get("reason") or "")
+            write_private(self.path, self.doc.model_dump_json(indent=2))
 
     def validate(self, data: dict) -> MeshConfig:
         """A MeshConfig from `data`, checked against the controller registry and the plant."""
@@ -106,8 +129,8 @@ class ConfigStore:
                     raise QueryError(f"`manual_action`: {problem}")
         return config
 
-    def apply(self, update: ConfigUpdate, section: str) -> tuple[ConfigDoc, dict]:
-        """A new version from `update` through the `section` key; QueryError if it is not valid."""
+    def apply(self, update: ConfigUpdate, section: str, role: str = "operator") -> tuple[ConfigDoc, dict]:
+        """A new version from `update` through the `section` key, asked by the bus identity `role`."""
         if section != "all":
             others = sorted(set(update.changes) - {section})
             if others:
@@ -124,16 +147,14 @@ class ConfigStore:
             if not changes:
                 return current, {}
             doc = ConfigDoc(source="configuration", version=current.version + 1, config=config,
-                            changed_by=update.by, reason=update.reason)  # fmt: skip
+                            changed_by=f"{role}/{update.by}", reason=update.reason)  # fmt: skip
             self._persist(doc, changes)
             self.doc = doc
         return doc, changes
 
     def _persist(self, doc: ConfigDoc, changes: dict) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(doc.model_dump_json(indent=2))
-        os.replace(tmp, self.path)
+        write_private(self.path, doc.model_dump_json(indent=2))
         if self.history is not None:
             self.history.add_config_change(doc, changes)
 
@@ -158,13 +179,23 @@ class ConfigurationAgent(Agent):
         self.store = ConfigStore(path, default_config(s), system, self.history)
         log.info("configuration version %d from %s", self.store.doc.version, path)
         for name in CONFIG_SECTIONS:
-            self.serve(keys.config(self.site, name), lambda payload, name=name: self._query(name, payload))
+            self.serve(keys.config(self.site, name), lambda payload, name=name: self._read(name, payload))
+            for role in keys.CONFIGURING_ROLES:
+                self.serve(keys.configure(self.site, role, name),
+                           lambda payload, name=name, role=role: self._query(name, payload, role))
         self.bus.publish(keys.config(self.site, "all"), self.store.doc, block=True)
 
     def details(self) -> dict:
         return {"version": self.store.doc.version if self.store else None, **self.tally}
 
-    def _query(self, section: str, payload: bytes | None) -> ConfigDoc:
+    def _read(self, section: str, payload: bytes | None) -> ConfigDoc:
+        if payload:
+            self.tally["refused"] += 1
+            raise QueryError(f"config/{section} only answers the current document; changes go to "
+                             f"configure/<role>/{section} (roles {', '.join(keys.CONFIGURING_ROLES)})")  # fmt: skip
+        return self.store.doc
+
+    def _query(self, section: str, payload: bytes | None, role: str) -> ConfigDoc:
         if not payload:
             return self.store.doc
         try:
@@ -176,12 +207,12 @@ class ConfigurationAgent(Agent):
             self.tally["refused"] += 1
             raise QueryError(f"the request is not JSON: {exc}") from None
         try:
-            doc, changes = self.store.apply(update, section)
+            doc, changes = self.store.apply(update, section, role if self.settings.bus_auth else f"{role}?")
         except QueryError:
             self.tally["refused"] += 1
             raise
         if changes:
             self.tally["changes"] += 1
-            log.info("config version %d by %s: %s", doc.version, update.by, json.dumps(changes, default=str))
+            log.info("config version %d by %s: %s", doc.version, doc.changed_by, json.dumps(changes, default=str))
             self.bus.publish(keys.config(self.site, "all"), doc, block=True)
         return doc

@@ -1,16 +1,21 @@
 """The Orchestration agent: starts the other agents, sees them die, restarts them with backoff.
 
 Death is seen three ways: the child process exits (polled every 50 ms), its liveliness token
-goes (the router drops a session at once when its socket closes, or after the lease when the
-process hangs, e.g. SIGSTOP), or it stays alive but stops publishing stats for
-``hung_after_s``. A dead or hung agent is SIGKILLed (its whole process group), reported as an
+goes and does not come back within ``hung_after_s`` (the router drops a session at once when its
+socket closes, or after the lease when the process hangs, e.g. SIGSTOP), or it stays alive but
+stops publishing stats for ``hung_after_s``. The last two count only while this agent's own
+session reaches a router, and from ``hung_after_s`` after it got it back: when the router dies
+every token goes at once and no stats flow, yet the agents are healthy and reconnect by
+themselves. A dead or hung agent is SIGKILLed (its whole process group), reported as an
 event with the tail of its log, and restarted after a backoff that doubles on repeated deaths
 and resets once it has run for ``healthy_after_s``. A role whose module does not import yet
 (the UI before its issue lands) is skipped with a clear log line and a ``skipped`` event.
 
-A restarted orchestrator adopts the agents still alive (the pid files its predecessor wrote, the
-tokens a liveliness query finds) instead of starting duplicates; should a duplicate still appear
-(same agent id, same host, a pid it does not supervise), the stranger is killed. With
+It acts only on processes it started itself or adopted from its predecessor's pid files, each
+checked by pid and start time (a recycled pid is not the agent), never on a pid a bus message
+names: a stats message with another pid for a supervised agent id is counted and reported, not
+acted on. A restarted orchestrator adopts the agents still alive (its predecessor's pid files, the
+tokens a liveliness query finds) instead of starting duplicates. With
 ``supervise = false`` (docker compose, where the container engine restarts) it only watches and
 reports.
 """
@@ -30,7 +35,7 @@ from lcmesh.mesh.agents.base import Agent
 from lcmesh.mesh.agents.registry import check_role, unavailable_reason
 from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import AgentStats, CommandReply
-from lcmesh.mesh.processes import Child, agent_child, child_env
+from lcmesh.mesh.processes import Child, agent_child, child_env, read_pidfile, same_process, start_ticks
 
 log = logging.getLogger("lcmesh.mesh.agents.orchestration")
 START_GRACE_S = 20.0  # a started agent must declare its token within this, or it is restarted
@@ -52,7 +57,8 @@ class Managed:
     backoff_s: float = 0.0
     starts: int = 0
     last_stats_at: float | None = None
-    stats_pid: int | None = None
+    token_lost_at: float | None = None
+    adopted_start: int | None = None
 
     @property
     def alive(self) -> bool:
@@ -60,10 +66,12 @@ class Managed:
 
     @property
     def pid(self) -> int | None:
+        """The process this orchestrator started or adopted, if it still runs (never a pid from a message)."""
         if self.child is not None and self.child.running():
             return self.child.pid
-        pid = self.adopted_pid if self.adopted_pid is not None else (self.stats_pid if self.state == "up" else None)
-        return pid if pid is not None and _pid_alive(pid) else None
+        if self.adopted_pid is not None and same_process(self.adopted_pid, self.adopted_start):
+            return self.adopted_pid
+        return None
 
 
 class OrchestrationAgent(Agent):
@@ -78,6 +86,8 @@ class OrchestrationAgent(Agent):
         self._env = child_env(None, **settings.to_env())
         self._adopting_done = False
         self._host = socket.gethostname()
+        self._connected_since: float | None = None
+        self.tally = {"foreign_stats": 0, "router_outages": 0}
 
     # --- lifecycle ------------------------------------------------------------------------------
     def on_start(self) -> None:
@@ -113,7 +123,7 @@ class OrchestrationAgent(Agent):
     def details(self) -> dict:
         with self._lock:
             return {"agents": {m.agent_id: {"role": m.role, "state": m.state, "pid": m.pid, "starts": m.starts}
-                               for m in self.managed.values()}, "skipped": self.skipped}  # fmt: skip
+                               for m in self.managed.values()}, "skipped": self.skipped, **self.tally}  # fmt: skip
 
     def _status(self, _payload: bytes | None) -> CommandReply:
         return CommandReply(ok=True, data=self.details())
@@ -129,6 +139,8 @@ class OrchestrationAgent(Agent):
             if m is None or m.role != role:
                 return
             now = time.monotonic()
+            if alive:
+                m.token_lost_at = None
             if alive and m.state != "up":
                 m.state, m.up_since = "up", now
                 if m.down_since is not None:
@@ -138,27 +150,24 @@ class OrchestrationAgent(Agent):
                     self.emit_event("started", f"up {now - m.started_at:.2f} s after start", role=m.role,
                                     agent_id=m.agent_id, pid=m.pid)  # fmt: skip
                 m.down_since = None
-            elif not alive and m.state == "up":
-                self._died(m, "liveliness token lost (process dead, hung or disconnected)")
+            elif not alive and m.state == "up" and m.token_lost_at is None:
+                m.token_lost_at = now  # judged in _check: the router may be gone, not the agent
 
     def _on_stats(self, stats: AgentStats) -> None:
+        """Stats keep a supervised agent from counting as hung; their pid is a claim, never acted on."""
         with self._lock:
             m = self.managed.get(stats.agent_id)
             if m is None or m.role != stats.role:
                 return
             ours = m.pid
-            if self.cfg.supervise and ours is not None and stats.pid != ours and stats.host == self._host:
-                self._kill_duplicate(m, stats.pid)
+            if ours is not None and stats.host == self._host and stats.pid != ours:
+                self.tally["foreign_stats"] += 1
+                if self.tally["foreign_stats"] in (1, 10, 100) or self.tally["foreign_stats"] % 1000 == 0:
+                    self.emit_event("warning", f"stats for {m.agent_id} name pid {stats.pid}, but the supervised "
+                                    f"process is {ours}; not acting on a pid from a message "
+                                    f"({self.tally['foreign_stats']} so far)", role=m.role, agent_id=m.agent_id)
                 return
-            m.last_stats_at, m.stats_pid = time.monotonic(), stats.pid
-
-    def _kill_duplicate(self, m: Managed, pid: int) -> None:
-        """A second process with this agent id on this host (a lost adoption): the one not supervised goes."""
-        if _pid_alive(pid) and _is_agent_process(pid):
-            log.warning("%s: a second process (pid %d) runs as this agent; killing it", m.agent_id, pid)
-            _kill_adopted(pid, graceful=False, timeout_s=0.0)
-            self.emit_event("died", f"duplicate process {pid} of {m.agent_id} killed (supervised: {m.pid})",
-                            role=m.role, agent_id=m.agent_id, pid=pid)  # fmt: skip
+            m.last_stats_at = time.monotonic()
 
     # --- supervision ----------------------------------------------------------------------------------
     def _supervise(self) -> None:
@@ -166,8 +175,24 @@ class OrchestrationAgent(Agent):
         while not self.wait(0.05):
             with self._lock:
                 now = time.monotonic()
+                judging = self._judging_silence(now)
                 for m in self.managed.values():
-                    self._check(m, now)
+                    self._check(m, now, judging)
+
+    def _judging_silence(self, now: float) -> bool:
+        """Whether a lost token or missing stats may be blamed on an agent: our own link has been up for a while."""
+        if not self.bus.connected():
+            if self._connected_since is not None:
+                self.tally["router_outages"] += 1
+                log.warning("no router reachable; not judging agents by tokens or stats until it is back")
+            self._connected_since = None
+            return False
+        if self._connected_since is None:
+            self._connected_since = now
+            for m in self.managed.values():  # stats and tokens resume after the reconnection
+                if m.last_stats_at is not None:
+                    m.last_stats_at = max(m.last_stats_at, now)
+        return now - self._connected_since > self.cfg.hung_after_s
 
     def _adopt(self) -> None:
         """Take over agents a previous orchestrator left running (its pid files, live tokens), never duplicate them."""
@@ -179,11 +204,11 @@ class OrchestrationAgent(Agent):
         now = time.monotonic()
         with self._lock:
             for m in self.managed.values():
-                pid = self._read_pidfile(m)
+                pid, start = self._read_pidfile(m)
                 token = keys.alive(self.site, m.role, m.agent_id) in tokens
                 if pid is None and not token:
                     continue
-                m.adopted_pid = pid if pid is not None else m.stats_pid
+                m.adopted_pid, m.adopted_start = pid, start
                 if m.state != "up":
                     m.state = "up" if token else "starting"
                     m.started_at, m.up_since = now, now if token else None
@@ -191,14 +216,20 @@ class OrchestrationAgent(Agent):
                                 agent_id=m.agent_id, pid=m.adopted_pid)  # fmt: skip
             self._adopting_done = True
 
-    def _check(self, m: Managed, now: float) -> None:
+    def _check(self, m: Managed, now: float, judging: bool = True) -> None:
         child_exited = m.child is not None and m.child.popen is not None and not m.child.running()
-        adopted_gone = m.child is None and m.adopted_pid is not None and not _pid_alive(m.adopted_pid)
+        adopted_gone = (m.child is None and m.adopted_pid is not None
+                        and not same_process(m.adopted_pid, m.adopted_start))  # fmt: skip
         if m.state == "up":
             if child_exited:
                 self._died(m, f"process exited with code {m.child.popen.returncode}")
             elif adopted_gone:
                 self._died(m, f"adopted process {m.adopted_pid} is gone")
+            elif not judging:
+                return
+            elif m.token_lost_at is not None and now - m.token_lost_at > self.cfg.hung_after_s:
+                self._died(m, f"liveliness token lost {now - m.token_lost_at:.1f} s ago while the router is "
+                           "reachable (hung or disconnected)", kind="hung")  # fmt: skip
             elif m.last_stats_at is not None and now - m.last_stats_at > self.cfg.hung_after_s:
                 self._died(m, f"alive but silent for {now - m.last_stats_at:.1f} s (hung)", kind="hung")
         elif m.state == "starting":
@@ -206,7 +237,7 @@ class OrchestrationAgent(Agent):
                 self._died(m, f"process exited with code {m.child.popen.returncode} while starting")
             elif adopted_gone:
                 self._died(m, f"adopted process {m.adopted_pid} exited while starting")
-            elif now - m.started_at > START_GRACE_S:
+            elif judging and now - m.started_at > START_GRACE_S:
                 self._died(m, f"no liveliness token {START_GRACE_S:.0f} s after start", kind="hung")
         elif self.cfg.supervise and now >= m.next_start_at:
             self._start(m, now)
@@ -222,7 +253,7 @@ class OrchestrationAgent(Agent):
             m.backoff_s = self.cfg.backoff_initial_s
         else:
             m.backoff_s = min(self.cfg.backoff_max_s, 2 * m.backoff_s)
-        m.state, m.last_stats_at, m.up_since = "down", None, None
+        m.state, m.last_stats_at, m.up_since, m.token_lost_at = "down", None, None, None
         m.down_since = m.down_since if m.down_since is not None else now
         m.next_start_at = now + m.backoff_s
         detail = f"{reason}; restarting in {m.backoff_s:.1f} s" if self.cfg.supervise else reason
@@ -233,7 +264,7 @@ class OrchestrationAgent(Agent):
     def _start(self, m: Managed, now: float) -> None:
         log_path = self.settings.log_dir / f"{m.agent_id}.log"
         m.child = agent_child(m.role, m.agent_id, self._env, log_path).start()
-        m.adopted_pid, m.started_at, m.state = None, now, "starting"
+        m.adopted_pid, m.adopted_start, m.started_at, m.state = None, None, now, "starting"
         m.starts += 1
         log.info("started %s as pid %d (log %s)", m.agent_id, m.child.pid, log_path)
         self._write_pidfile(m)
@@ -248,26 +279,26 @@ class OrchestrationAgent(Agent):
                     m.child.popen.wait(timeout=2.0)
                 except Exception:
                     pass
-        if m.adopted_pid is not None and _pid_alive(m.adopted_pid):
+        if m.adopted_pid is not None and same_process(m.adopted_pid, m.adopted_start):
             _kill_adopted(m.adopted_pid, graceful, self.cfg.stop_timeout_s)
-        m.adopted_pid = None
+        m.adopted_pid = m.adopted_start = None
         self._remove_pidfile(m)
 
     def _write_pidfile(self, m: Managed) -> None:
         path = self.settings.data_dir / "pids" / f"{m.agent_id}.pid"
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(str(m.child.pid))
+        path.write_text(f"{m.child.pid} {start_ticks(m.child.pid)}")
 
     def _remove_pidfile(self, m: Managed) -> None:
         (self.settings.data_dir / "pids" / f"{m.agent_id}.pid").unlink(missing_ok=True)
 
-    def _read_pidfile(self, m: Managed) -> int | None:
-        """The pid a previous orchestrator wrote for `m`, if that process is still an agent."""
-        try:
-            pid = int((self.settings.data_dir / "pids" / f"{m.agent_id}.pid").read_text().strip())
-        except (OSError, ValueError):
-            return None
-        return pid if _pid_alive(pid) and _is_agent_process(pid) else None
+    def _read_pidfile(self, m: Managed) -> tuple[int | None, int | None]:
+        """(pid, start time) a previous orchestrator wrote for `m`, if that very process still runs as an agent."""
+        found = read_pidfile(self.settings.data_dir / "pids" / f"{m.agent_id}.pid")
+        if found is None:
+            return None, None
+        pid, start = found
+        return (pid, start) if same_process(pid, start) and _is_agent_process(pid) else (None, None)
 
 
 def _pid_alive(pid: int) -> bool:

@@ -35,7 +35,7 @@ def run_agent(role: str, settings: MeshSettings | None = None, agent_id: str | N
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     try:
-        bus = Bus.connect(settings, agent.agent_id)
+        bus = Bus.connect(settings, agent.agent_id, role=agent.role)
     except BusError as exc:
         log.error("%s", exc)
         return EXIT_NO_ROUTER
@@ -61,7 +61,7 @@ def check_agent(role: str, settings: MeshSettings | None = None, agent_id: str |
                 timeout_s: float = 3.0) -> list[str]:  # fmt: skip
     """Liveliness tokens of `role` (one agent id, or any) on the mesh; a healthcheck."""
     settings = settings or MeshSettings()
-    bus = Bus.connect(settings, "healthcheck", timeout_s=min(timeout_s, settings.connect_timeout_s))
+    bus = Bus.connect(settings, "healthcheck", role=role, timeout_s=min(timeout_s, settings.connect_timeout_s))
     try:
         key = keys.alive(settings.site, role, agent_id) if agent_id else keys.alive_role(settings.site, role)
         return bus.alive(key, timeout_s=timeout_s)

@@ -8,7 +8,9 @@ falls back to G36, which it runs in shadow every step so it is warm. With ``valv
 in the config, the applied action also carries the scheduled primary-valve strokes (recorded as
 clamps with their reason; the last safe action stays the unstroked one). The step's applied action,
 the next plant state and an FMU checkpoint go to history in one transaction before the applied
-action is published.
+action is published. A proposal counts only if it names the step and the id of the state this
+Sensor published for it; only the control role can publish proposals at all (the router's access
+control, docs/mesh.md, Security).
 
 It also hosts the toolbox queryables (``tools/{name}``, serialized with stepping by the twin's
 lock) and the commands ``cmd/{agent_id}/inject_fault`` and ``cmd/{agent_id}/status``.
@@ -53,7 +55,7 @@ class SensorAgent(Agent):
         self._window: _StepWindow | None = None
         self._misses = 0
         self.tally = {"steps": 0, "proposals_applied": 0, "held": 0, "g36_fallback": 0, "rejected": 0,
-                      "late_periods": 0, "stale_proposals": 0, "duplicate_proposals": 0,
+                      "late_periods": 0, "stale_proposals": 0, "duplicate_proposals": 0, "foreign_proposals": 0,
                       "valve_strokes": 0}  # fmt: skip
         self._exercise: ValveExercise | None = None
         self._exercise_period = 0.0
@@ -63,7 +65,7 @@ class SensorAgent(Agent):
     # --- lifecycle ------------------------------------------------------------------------------
     def on_start(self) -> None:
         s = self.settings
-        self.history = HistoryWriter(s.history_file)
+        self.history = HistoryWriter(s.history_file, retention=s.history)
         self.twin = TwinHost(s.system, s.trace, s.wet_bulb_offset_k, instance_name=self.agent_id)
         self.fallback = G36Controller(self.twin.system)
         self._begin_or_resume()
@@ -127,6 +129,9 @@ class SensorAgent(Agent):
             window = self._window
             if window is None or proposal.step != window.state.step:
                 self.tally["stale_proposals"] += 1
+                return
+            if proposal.state_id != window.state.id:  # not decided on the state this Sensor published
+                self.tally["foreign_proposals"] += 1
                 return
             if window.claimed:
                 self.tally["duplicate_proposals"] += 1
@@ -212,6 +217,7 @@ class SensorAgent(Agent):
         payload = self._full_payload(next_state.step)
         self.history.record_step(applied, next_state, payload=payload, checkpoint=checkpoint)
         self.bus.publish(keys.applied(self.site, self.cfg.loop), applied, block=True)
+        self.history.maintain()  # retention, after the step is out
         self.tally["steps"] += 1
         return next_state
 

@@ -17,7 +17,7 @@ from tests.mesh.conftest import wait_until
 
 
 def _update(client, site, section="all", **kw):
-    return client.request(keys.config(site, section), ConfigDoc, ConfigUpdate(by="operator", **kw))
+    return client.request(keys.configure(site, "operator", section), ConfigDoc, ConfigUpdate(by="alice", **kw))
 
 
 def test_changes_are_versioned_persisted_and_audited(start_agent, client, mesh_settings):
@@ -34,7 +34,7 @@ def test_changes_are_versioned_persisted_and_audited(start_agent, client, mesh_s
     stored = json.loads((mesh_settings.data_dir / "config.json").read_text())
     assert stored["version"] == 2
     audit = HistoryReader(mesh_settings.history_file).config_changes()
-    assert audit[0]["version"] == 2 and audit[0]["changed_by"] == "operator" and audit[0]["reason"] == "summer"
+    assert audit[0]["version"] == 2 and audit[0]["changed_by"] == "operator/alice" and audit[0]["reason"] == "summer"
     assert audit[0]["changes"] == {"guardrails.supply_temp_max_k": [313.15, 305.0]}
     assert _update(client, site, changes={"guardrails": {"supply_temp_max_k": 305.0}}).version == 2  # no-op
 
@@ -65,9 +65,11 @@ def test_stale_writers_and_garbage_requests_are_refused(start_agent, client, mes
     with pytest.raises(BusError, match="`expected_version` is 1 but the current version is 2"):
         _update(client, site, changes={"speed_factor": 200}, expected_version=1)
     with pytest.raises(BusError, match="invalid ConfigUpdate"):
-        client.request(keys.config(site, "all"), ConfigDoc, b'{"changes": {}}')
+        client.request(keys.configure(site, "operator"), ConfigDoc, b'{"changes": {}}')
     with pytest.raises(BusError, match="not JSON|invalid ConfigUpdate"):
-        client.request(keys.config(site, "all"), ConfigDoc, b"\x00garbage")
+        client.request(keys.configure(site, "operator"), ConfigDoc, b"\x00garbage")
+    with pytest.raises(BusError, match="only answers the current document; changes go to configure/"):
+        client.request(keys.config(site, "all"), ConfigDoc, ConfigUpdate(by="x", changes={"speed_factor": 9}))
 
 
 def test_a_restarted_configuration_agent_keeps_its_version(start_agent, client, mesh_settings):

@@ -54,7 +54,7 @@ def _answer_with(client, site, make_action):
     client.subscribe(keys.plant_state(site), PlantState, on_state)
 
 
-def test_out_of_range_proposals_are_clamped_and_malformed_ones_rejected(start_agent, client, mesh_settings, lcopt5):
+def test_out_of_range_proposals_are_clamped_and_malformed_ones_rejected(start_agent, bus_as, mesh_settings, lcopt5):
     sensor = start_agent(SensorAgent)
     C, B, N = lcopt5.cabinets.count, lcopt5.cabinets.branches, lcopt5.towers.count
 
@@ -65,7 +65,7 @@ def test_out_of_range_proposals_are_clamped_and_malformed_ones_rejected(start_ag
         return ActionModel(supply_temp_setpoint_k=[400.0] * C, dp_setpoint_pa=[190e3] * C,
                            valve_fractions=[[1 / B] * B] * C, lw_setpoint_k=[300.0] * N)  # fmt: skip
 
-    _answer_with(client, mesh_settings.site, action)
+    _answer_with(bus_as("control"), mesh_settings.site, action)
     assert wait_until(lambda: sensor.tally["rejected"] >= 3 and sensor.tally["proposals_applied"] >= 3, 20)
     rows = HistoryReader(mesh_settings.history_file).decisions(limit=100)
     clamped = [r for r in rows if r["source_controller"] == "test"]

@@ -57,7 +57,8 @@ class MeshGateway:
                       expected_version: int | None = None) -> ConfigDoc:  # fmt: skip
         """Ask the Configuration agent for a new version; MeshRefused names what is wrong."""
         update = ConfigUpdate(changes=changes, by=by, reason=reason, expected_version=expected_version)
-        data = self._ask(keys.config(self.site, "all"), update.model_dump_json().encode(), "the Configuration agent")
+        key = keys.configure(self.site, self.bus.role or "ui", "all")
+        data = self._ask(key, update.model_dump_json().encode(), "the Configuration agent")
         return _parse(ConfigDoc, data, "the Configuration agent")
 
     def tool(self, name: str, request: dict[str, Any], timeout_s: float = 10.0) -> dict[str, Any]:
