@@ -179,7 +179,9 @@ def router_config(settings: MeshSettings) -> zenoh.Config:
     password = security.read_password(settings.secrets_path, security.ROUTER_USER)
     config.insert_json5("transport/auth/usrpwd", json.dumps({
         "user": security.ROUTER_USER, "password": password, "dictionary_file": str(paths.dictionary)}))
-    config.insert_json5("access_control", json.dumps(security.acl_config()))
+    config.insert_json5("id", json.dumps(security.router_zid(password, settings.listen_endpoints[0])))
+    peers = [security.router_zid(password, peer) for peer in settings.router_peers]
+    config.insert_json5("access_control", json.dumps(security.acl_config(peers)))
     if tls:
         config.insert_json5("transport/link/tls", json.dumps({
             "listen_private_key": str(paths.router_key), "listen_certificate": str(paths.router_cert),

@@ -16,6 +16,8 @@ files. This module does not import zenoh: it writes files and builds the ACL doc
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
+import hmac
 import ipaddress
 import os
 import secrets
@@ -70,11 +72,24 @@ def grants(role: str) -> dict[str, tuple[str, ...]]:
     return out
 
 
-def acl_config() -> dict:
+def router_zid(router_password: str, endpoint: str) -> str:
+    """A router's zenoh id, derived from the mesh's router secret and its first listen endpoint.
+
+    A router that links to a peer (scale-out) is not authenticated by that peer's side of the link
+    (only the opener sends a password), so the linking router knows the peer by this id: unguessable
+    without the secret, and computable from the peer's endpoint as written in ``router_peers``.
+    """
+    digest = hmac.new(router_password.encode(), endpoint.encode(), hashlib.sha256).hexdigest()
+    return "1" + digest[:31]  # 16 bytes, never zero
+
+
+def acl_config(peer_router_zids: list[str] | tuple[str, ...] = ()) -> dict:
     """The router's ``access_control`` section: default deny; each role's grants, reads for all, egress open.
 
     Only what a client sends into the router (ingress) is filtered; what the router forwards out
-    (egress) follows from what was let in (a put reaches only declared subscribers).
+    (egress) follows from what was let in (a put reaches only declared subscribers). Linked routers
+    may send anything: those that opened the link authenticate as ``router``, those this router
+    linked to are known by id (`peer_router_zids`).
     """
     rules = [
         {"id": "egress", "permission": "allow", "flows": ["egress"], "messages": list(ALL_MESSAGES),
@@ -86,6 +101,9 @@ def acl_config() -> dict:
     ]  # fmt: skip
     subjects = [{"id": ROUTER_USER, "usernames": [ROUTER_USER]}]
     policies = [{"id": "router-link", "rules": ["egress", "router-link"], "subjects": [ROUTER_USER]}]
+    if peer_router_zids:
+        subjects.append({"id": "peer-routers", "zids": list(peer_router_zids)})
+        policies[0]["subjects"].append("peer-routers")
     for role in ROLES:
         by_kinds: dict[tuple[str, ...], list[str]] = {}
         for key, kinds in grants(role).items():

@@ -36,7 +36,7 @@ def test_agent_check_sees_a_live_agent(tmp_path):
     agent = Bus.connect(settings, "sensor")
     try:
         agent.declare_token(keys.alive("default", "sensor", "sensor"))
-        env = {**os.environ, "LCMESH_ROUTER_ENDPOINTS": f"tcp/127.0.0.1:{port}"}
+        env = {**os.environ, "LCMESH_ROUTER_ENDPOINTS": f"tcp/127.0.0.1:{port}", "LCMESH_DATA_DIR": str(tmp_path)}
         ok = subprocess.run([LCMESH, "agent", "sensor", "--check"], env=env, capture_output=True, text=True, timeout=30)
         missing = subprocess.run([LCMESH, "agent", "control", "--check"], env=env, capture_output=True, text=True,
                                  timeout=30)  # fmt: skip

@@ -164,14 +164,24 @@ def _zombie(pid: int) -> bool:
 
 
 def test_garbage_on_every_key_is_dropped_and_counted(mesh):
+    """Garbage from the very role allowed on each key (a buggy agent): the router's ACL lets it through, the agents
+    drop and count it (outsiders' garbage never gets past the router: tests/mesh/test_security.py)."""
     s, bus = mesh.settings, mesh.bus
-    subscribed = [keys.plant_state(s.site), keys.proposal(s.site), keys.applied(s.site), keys.config(s.site, "all"),
-                  keys.agent_stats(s.site, "ghost"), keys.events(s.site), keys.alerts(s.site),
-                  keys.explain(s.site, "x1"), keys.monitor_report(s.site)]  # fmt: skip
+    subscribed = [(keys.plant_state(s.site), "sensor"), (keys.proposal(s.site), "control"),
+                  (keys.applied(s.site), "sensor"), (keys.config(s.site, "all"), "configuration"),
+                  (keys.agent_stats(s.site, "monitor-ghost"), "monitor"), (keys.events(s.site), "ui"),
+                  (keys.alerts(s.site), "maintenance"), (keys.explain(s.site, "x1"), "control"),
+                  (keys.monitor_report(s.site), "monitor")]  # fmt: skip
     junk = [b"", b"\x00\xff", b"{", b"[]", b'{"schema_version": 1}', b'{"source": "x", "step": -1}']
-    for key in subscribed:
-        for payload in junk:
-            bus.publish_raw(key, payload, block=True)
+    buggy = {role: Bus.connect(s, f"{role}-buggy", role=role) for role in {role for _, role in subscribed}}
+    try:
+        time.sleep(0.5)  # the router has the new sessions' interests
+        for key, role in subscribed:
+            for payload in junk:
+                buggy[role].publish_raw(key, payload, block=True)
+    finally:
+        for other in buggy.values():
+            other.close()
     queried = [keys.config(s.site, n) for n in ("all", "controller", "guardrails")] + [
         keys.cmd(s.site, "sensor", "inject_fault"), keys.cmd(s.site, "orchestration", "status"),
         keys.tool(s.site, "whatif"), keys.tool(s.site, "heat_balance")]  # fmt: skip
@@ -231,6 +241,50 @@ def test_sigstop_is_handled_like_a_death(mesh, agent_id):
 def test_sigstop_of_the_other_agents(mesh, agent_id):
     dead, back = _kill_and_watch(mesh, agent_id, signal.SIGSTOP)
     assert dead is not None and dead <= DEATH_SEEN_S and back is not None and dead + back <= BACK_S
+
+
+def _routers(demo) -> list:
+    """The demo's live router children (a killed one may linger as a zombie until the demo reaps it)."""
+    import psutil
+
+    found = []
+    for child in demo.children():
+        try:
+            if "lcmesh.mesh.router" in " ".join(child.cmdline()):
+                found.append(child)
+        except psutil.Error:
+            continue
+    return found
+
+
+def test_router_sigkill_kills_no_healthy_agent_and_leaves_no_orphan(mesh):
+    import psutil
+
+    demo = psutil.Process(mesh.demo.pid)
+    routers = _routers(demo)
+    assert len(routers) == 1, [p.pid for p in demo.children()]
+    before = {a: mesh.pid(a) for a in ROLES + ["orchestration"]}
+    assert all(before.values()), before
+    t_kill = time.monotonic()
+    routers[0].kill()
+    new_router = wait_until(lambda: [p for p in _routers(demo) if p.pid != routers[0].pid], 20)
+    assert new_router, "the demo restarts its router"
+    assert wait_until(lambda: all(mesh.token_change_after(a, t_kill, True) is not None for a in before), 30), \
+        "every agent declared its token again on the new router"
+    assert wait_until(lambda: [a for t, a in mesh.applied if t > t_kill and not a.fallback], 30), "proposals again"
+    assert {a: mesh.pid(a) for a in before} == before, "no agent was killed or restarted"
+    killed = [e for t, e in mesh.events if t >= t_kill and e.kind in ("died", "hung", "restarted")]
+    assert not killed, killed
+    assert psutil.Process(before["orchestration"]).ppid() == mesh.demo.pid
+    ours = str(mesh.settings.data_dir)
+    agents = set()
+    for proc in psutil.process_iter():
+        try:
+            if "lcmesh.mesh.agents" in " ".join(proc.cmdline()) and proc.environ().get("LCMESH_DATA_DIR") == ours:
+                agents.add(proc.pid)
+        except psutil.Error:
+            continue
+    assert agents == set(before.values()), "no orphans: every agent process of this mesh is a supervised one"
 
 
 def test_no_history_row_was_lost(mesh):

@@ -55,7 +55,8 @@ def test_two_linked_routers_carry_the_control_loop_between_hosts(tmp_path):
 def test_sites_share_one_mesh_without_crosstalk(tmp_path):
     port = free_port()
     site_a = make_settings(tmp_path / "a", port, site="plant-a", controller="g36")
-    site_b = make_settings(tmp_path / "b", port, site="plant-b", controller="static")
+    site_b = make_settings(tmp_path / "b", port, site="plant-b", controller="static",
+                           secrets_dir=site_a.secrets_path)  # one mesh, one router: its passwords  # fmt: skip
     routers = [Bus.open_router(site_a)]
     agents = []
     seen: dict[str, list[AppliedAction]] = {"plant-a": [], "plant-b": []}

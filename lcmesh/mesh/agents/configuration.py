@@ -92,12 +92,13 @@ class ConfigStore:
             rows = reader.config_changes(limit=1)
         finally:
             reader.close()
-        if not rows:
+        if not rows or rows[0]["version"] < self.doc.version:  # a new history file: audit what the store holds
+            self.history.add_config_change(self.doc, {"*": [None, f"loaded from {self.path}"]})
             return
         audited = int(rows[0]["version"])
-        if self.doc.version != audited:
-            log.warning("%s holds version %d but history's latest audited version is %d; using history's",
-                        self.path, self.doc.version, audited)  # fmt: skip
+        if self.doc.version != audited or rows[0]["config"] != self.doc.config.model_dump(mode="json"):
+            log.warning("%s holds version %d but history's latest audited version is %d (or differs); using "
+                        "history's", self.path, self.doc.version, audited)  # fmt: skip
             config = self.validate(rows[0]["config"])
             self.doc = ConfigDoc(source="configuration", version=audited, config=config,
                                  changed_by=rows[0].get("changed_by") or "history", reason=rows[0].get("reason") or "")

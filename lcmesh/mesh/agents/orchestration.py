@@ -4,7 +4,7 @@ Death is seen three ways: the child process exits (polled every 50 ms), its live
 goes and does not come back within ``hung_after_s`` (the router drops a session at once when its
 socket closes, or after the lease when the process hangs, e.g. SIGSTOP), or it stays alive but
 stops publishing stats for ``hung_after_s``. The last two count only while this agent's own
-session reaches a router, and from ``hung_after_s`` after it got it back: when the router dies
+session reaches a router, and from ``RECONNECT_GRACE_S`` after it got it back from an outage: when the router dies
 every token goes at once and no stats flow, yet the agents are healthy and reconnect by
 themselves. A dead or hung agent is SIGKILLed (its whole process group), reported as an
 event with the tail of its log, and restarted after a backoff that doubles on repeated deaths
@@ -39,6 +39,7 @@ from lcmesh.mesh.processes import Child, agent_child, child_env, read_pidfile, s
 
 log = logging.getLogger("lcmesh.mesh.agents.orchestration")
 START_GRACE_S = 20.0  # a started agent must declare its token within this, or it is restarted
+RECONNECT_GRACE_S = 10.0  # after (re)gaining the router, agents get this long to reconnect before being judged
 
 
 @dataclass
@@ -192,7 +193,8 @@ class OrchestrationAgent(Agent):
             for m in self.managed.values():  # stats and tokens resume after the reconnection
                 if m.last_stats_at is not None:
                     m.last_stats_at = max(m.last_stats_at, now)
-        return now - self._connected_since > self.cfg.hung_after_s
+        grace = max(self.cfg.hung_after_s, RECONNECT_GRACE_S) if self.tally["router_outages"] else 0.0
+        return now - self._connected_since >= grace
 
     def _adopt(self) -> None:
         """Take over agents a previous orchestrator left running (its pid files, live tokens), never duplicate them."""
