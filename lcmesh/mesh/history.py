@@ -7,12 +7,17 @@ no gap in step indices), the Control agent its explanations, the Maintenance age
 the Configuration agent config changes, the Orchestrator agent events. Each producer writes
 before it publishes, so what was on the bus is in the file.
 
-``HistoryReader`` is the read API the UI uses (documented in docs/mesh.md).
+The file and its -wal/-shm are created with mode 0600 (a missing parent folder with 0700) and
+with incremental auto-vacuum, so the Sensor's writer can keep it under a bound
+(``lcmesh.mesh.retention``, ``LCMESH_HISTORY__*``). ``HistoryReader`` is the read API the UI uses
+(documented in docs/mesh.md).
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import os
 import sqlite3
 import threading
 from collections.abc import Iterable, Sequence
@@ -22,7 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.mesh.messages import AgentEvent, Alert, AppliedAction, ConfigDoc, Explanation, PlantState, utc_now
+from lcmesh.mesh.retention import PassReport, Retention
+from lcmesh.mesh.settings import HistoryConfig
 
+log = logging.getLogger("lcmesh.mesh.history")
 BLADE_BAND_K = (293.15, 313.15)
 STATE_FIELDS = (
     "wet_bulb_k", "blade_temp_max_k", "blade_temp_mean_k", "blade_in_band_pct", "supply_temp_mean_k",
@@ -68,13 +76,25 @@ def _connect(path: Path, *, readonly: bool = False) -> sqlite3.Connection:
     if readonly:
         conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, check_same_thread=False, timeout=10.0)
     else:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        _create_private(path)
         conn = sqlite3.connect(str(path), check_same_thread=False, timeout=10.0, isolation_level=None)
+        conn.execute("PRAGMA auto_vacuum=INCREMENTAL")  # takes effect only in a file without tables: a new one
         conn.execute("PRAGMA journal_mode=WAL")
         conn.execute("PRAGMA synchronous=NORMAL")
     conn.execute("PRAGMA busy_timeout=10000")
     conn.row_factory = sqlite3.Row
     return conn
+
+
+def _create_private(path: Path) -> None:
+    """Create the file with mode 0600 (SQLite gives its -wal and -shm the same); tighten one left 0644 before."""
+    if not path.exists():
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o600))
+        return
+    for p in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm")):
+        if p.exists() and p.stat().st_mode & 0o077:
+            os.chmod(p, 0o600)
 
 
 def state_summary(msg: PlantState) -> dict[str, float | None]:
@@ -107,14 +127,20 @@ class Checkpoint:
 
 
 class HistoryWriter:
-    """Writes history rows; safe to share between threads of one process."""
+    """Writes history rows; safe to share between threads of one process.
 
-    def __init__(self, path: str | Path):
+    With `retention` (the Sensor's writer), ``maintain()`` keeps the file within it.
+    """
+
+    def __init__(self, path: str | Path, retention: HistoryConfig | None = None):
         self.path = Path(path)
         self._conn = _connect(self.path)
         self._lock = threading.Lock()
+        self._retention = Retention(retention, self.path) if retention is not None else None
         with self._lock:
             self._conn.executescript(_SCHEMA)
+            if self._retention is not None:
+                self._retention.configure(self._conn)
 
     def close(self) -> None:
         with self._lock:
@@ -171,6 +197,20 @@ class HistoryWriter:
                 (state.run_id, state.step, checkpoint[0], checkpoint[1], utc_now().isoformat()),
             ))  # fmt: skip
         self._write(statements)
+
+    def maintain(self) -> PassReport | None:
+        """Every ``prune_every_steps``-th call, one short retention pass (the Sensor calls it after each step).
+
+        Retention is housekeeping: a failed pass is logged, not raised, the control loop goes on and the
+        next pass retries.
+        """
+        if self._retention is None:
+            return None
+        try:
+            return self._retention.tick(self._conn, self._lock)
+        except Exception:
+            log.exception("history retention pass failed; retried at the next one")
+            return None
 
     # --- the other producers --------------------------------------------------------------------
     def add_explanation(self, msg: Explanation) -> None:
@@ -320,10 +360,23 @@ class HistoryReader:
             return self._rows("SELECT * FROM agent_events ORDER BY id DESC LIMIT ?", (limit,))
         return self._rows("SELECT * FROM agent_events WHERE agent_id = ? ORDER BY id DESC LIMIT ?", (agent_id, limit))
 
+    def first_step(self, table: str = "plant_states", run_id: str | None = None) -> int | None:
+        """The oldest step of the run still in `table`: retention pruned the steps before it (None: no rows)."""
+        _check_step_table(table)
+        rows = self._rows(f"SELECT MIN(step) AS step FROM {table} WHERE run_id = ?", (run_id or self.latest_run_id(),))
+        return rows[0]["step"]
+
     def step_gaps(self, table: str = "plant_states", run_id: str | None = None) -> list[tuple[int, int]]:
-        """(after, before) pairs of missing step ranges in `table` ('plant_states' or 'actions')."""
-        if table not in ("plant_states", "actions"):
-            raise ValueError(f"`table` must be 'plant_states' or 'actions', got {table!r}")
+        """(after, before) pairs of missing step ranges in `table` ('plant_states' or 'actions').
+
+        Among the rows retention kept: the pruned steps before ``first_step()`` are not a gap.
+        """
+        _check_step_table(table)
         run_id = run_id or self.latest_run_id()
         steps = [r["step"] for r in self._rows(f"SELECT step FROM {table} WHERE run_id = ? ORDER BY step", (run_id,))]
         return [(a, b) for a, b in zip(steps, steps[1:]) if b != a + 1]
+
+
+def _check_step_table(table: str) -> None:
+    if table not in ("plant_states", "actions"):
+        raise ValueError(f"`table` must be 'plant_states' or 'actions', got {table!r}")

@@ -111,7 +111,7 @@ class HistoryConfig(_Component):
                                     "agent events")
     keep_latest_steps: int = Field(240, ge=1, description="newest steps of an open run never thinned or pruned")
     prune_every_steps: int = Field(10, ge=1, description="a retention pass every N Sensor steps")
-    batch_rows: int = Field(100, ge=1, description="rows per DELETE/UPDATE transaction of a pass")
+    batch_rows: int = Field(25, ge=1, description="rows per DELETE/UPDATE transaction of a pass (its -wal share)")
     pass_budget_ms: float = Field(20.0, gt=0, description="a pass starts no new batch after this; the rest waits")
 
     @model_validator(mode="after")
