@@ -8,12 +8,15 @@ empty site of the same router answers what a UI says when the mesh is not ready.
 from __future__ import annotations
 
 import secrets
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import httpx
 import pytest
 
 from tests.mesh.conftest import free_port, make_settings, wait_until
+
+MESH_ROLES = ("configuration", "sensor", "control", "maintenance", "monitor")
 
 
 @dataclass
@@ -49,8 +52,9 @@ def _stop(started):
             bus.close()
 
 
-@pytest.fixture(scope="session")
-def ui_mesh(tmp_path_factory):
+@contextmanager
+def running_mesh(data_dir, roles: tuple[str, ...] = MESH_ROLES, **ui_overrides):
+    """Router, the agents of `roles` and a UI with a random token, in-process on free loopback ports; ready when given."""
     from lcmesh.mesh.agents.configuration import ConfigurationAgent
     from lcmesh.mesh.agents.control import ControlAgent
     from lcmesh.mesh.agents.maintenance import MaintenanceAgent
@@ -60,14 +64,16 @@ def ui_mesh(tmp_path_factory):
     from lcmesh.mesh.agents.ui.config import UiSettings
     from lcmesh.mesh.bus import Bus
 
-    settings = make_settings(tmp_path_factory.mktemp("ui-mesh"), ui_port=free_port(), speed_factor=300.0)
+    classes = {"configuration": ConfigurationAgent, "sensor": SensorAgent, "control": ControlAgent,
+               "maintenance": MaintenanceAgent, "monitor": MonitorAgent}  # fmt: skip
+    settings = make_settings(data_dir, ui_port=free_port(), speed_factor=300.0)
     token = secrets.token_urlsafe(24)
-    ui_settings = UiSettings(api_token=token, chat_rate_per_min=1e5, chat_burst=10_000)
+    ui_settings = UiSettings(**{"api_token": token, "chat_rate_per_min": 1e5, "chat_burst": 10_000, **ui_overrides})
     router = Bus.open_router(settings)
     started: list = []
     try:
-        for cls in (ConfigurationAgent, SensorAgent, ControlAgent, MaintenanceAgent, MonitorAgent):
-            _start(cls, settings, started)
+        for role in roles:
+            _start(classes[role], settings, started)
         ui = _start(UiAgent, settings, started, ui=ui_settings)
         mesh = UiMesh(settings, ui, [a for a, _ in started], token, ui.url)
         with mesh.client() as http:
@@ -80,6 +86,12 @@ def ui_mesh(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def ui_mesh(tmp_path_factory):
+    with running_mesh(tmp_path_factory.mktemp("ui-mesh")) as mesh:
+        yield mesh
+
+
+@pytest.fixture(scope="session")
 def empty_ui(ui_mesh, tmp_path_factory):
     """A UI on a site where nothing else runs (same router): the mesh is 'not ready' for it."""
     from lcmesh.mesh.agents.ui import UiAgent
@@ -87,7 +99,8 @@ def empty_ui(ui_mesh, tmp_path_factory):
     from lcmesh.mesh.settings import MeshSettings
 
     values = ui_mesh.settings.model_dump()
-    values.update(site="empty", data_dir=tmp_path_factory.mktemp("empty-site"), ui_port=free_port(), history_path=None)
+    values.update(site="empty", data_dir=tmp_path_factory.mktemp("empty-site"), ui_port=free_port(), history_path=None,
+                  secrets_dir=ui_mesh.settings.secrets_path)  # the same router: its bus passwords
     settings = MeshSettings(**values)
     started: list = []
     try:

@@ -40,3 +40,5 @@ def test_prometheus_and_grafana_provisioning_point_at_each_other():
     compose = yaml.safe_load((ROOT / "docker-compose.yml").read_text())["services"]
     assert {"prometheus", "grafana", "ui"} <= set(compose)
     assert compose["ui"]["environment"]["LCMESH_API_TOKEN_FILE"], "the UI binds 0.0.0.0 in compose: it needs a token"
+    scraped = job["static_configs"][0]["targets"][0]
+    assert scraped in compose["ui"]["environment"]["LCMESH_UI_ALLOWED_HOSTS"], "the Host allow-list lets Prometheus in"

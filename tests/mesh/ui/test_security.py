@@ -1,4 +1,5 @@
-"""Token resolution and the insecure-bind refusal, bearer matching, the chat rate limiter."""
+"""Token resolution (kept across restarts) and the insecure-bind refusal, bearer matching, the Host allow-list, the
+chat rate limiter."""
 
 from __future__ import annotations
 
@@ -6,8 +7,11 @@ import stat
 
 import pytest
 
+from lcmesh.mesh.agents.ui.config import UiSettings
+from lcmesh.mesh.agents.ui.guards import HostCheck
 from lcmesh.mesh.agents.ui.security import (
-    InsecureBindError, RateLimiter, allowed_origins, is_loopback, resolve_token, token_matches,
+    InsecureBindError, RateLimiter, allowed_hosts, allowed_origins, is_loopback, parse_host, resolve_token,
+    token_matches,
 )  # fmt: skip
 
 STRONG = "9f86d081884c7d659a2feaa0c55ad015"
@@ -16,8 +20,40 @@ STRONG = "9f86d081884c7d659a2feaa0c55ad015"
 def test_loopback_without_a_token_generates_one_readable_only_by_the_owner(tmp_path):
     token = resolve_token(None, None, "127.0.0.1", tmp_path)
     assert token.origin == "generated" and len(token.value) >= 32
-    assert token.path.read_text().strip() == token.value
+    assert token.path == tmp_path / "ui" / "api-token" and token.path.read_text().strip() == token.value
     assert stat.S_IMODE(token.path.stat().st_mode) == 0o600
+
+
+def test_a_restart_keeps_the_generated_token(tmp_path):
+    """The orchestrator restarts a hung UI: the operators' token must keep working (it used to be replaced)."""
+    first = resolve_token(None, None, "127.0.0.1", tmp_path)
+    again = resolve_token(None, None, "127.0.0.1", tmp_path)
+    assert again.value == first.value and again.origin == "file" and again.path == first.path
+    assert resolve_token("", None, "localhost", tmp_path).value == first.value  # an empty LCMESH_API_TOKEN too
+    first.path.chmod(0o644)
+    assert resolve_token(None, None, "::1", tmp_path).value == first.value
+    assert stat.S_IMODE(first.path.stat().st_mode) == 0o600, "a token file others can read is made private"
+    first.path.write_text("")
+    fresh = resolve_token(None, None, "127.0.0.1", tmp_path)
+    assert fresh.origin == "generated" and fresh.value != first.value, "an empty file gets a token"
+
+
+def test_host_allow_list_defaults_and_parsing():
+    assert allowed_hosts("127.0.0.1", 8000, []) == ["127.0.0.1:8000", "localhost:8000", "[::1]:8000"]
+    assert allowed_hosts("0.0.0.0", 80, ["ui:8000"]) == ["0.0.0.0:80", "127.0.0.1:80", "localhost:80", "[::1]:80",
+                                                         "ui:8000"]  # fmt: skip
+    assert parse_host("[::1]:8000") == ("[::1]", 8000) and parse_host("LocalHost.") == ("localhost", None)
+    for bad in ("a:b", "[::1", "x:1:2", "a/b", "", "h:1234567"):
+        with pytest.raises(ValueError, match="malformed host"):
+            parse_host(bad)
+    check = HostCheck(None, ["127.0.0.1:8000", "localhost:8000", "[::1]:8000", "ui", "grafana:80"])
+    assert check.allows("127.0.0.1:8000") and check.allows("LOCALHOST:8000") and check.allows("[::1]:8000")
+    assert check.allows("ui:9999") and check.allows("grafana")  # no port: 80, the http default
+    for refused in ("evil.example:8000", "127.0.0.1:8001", "localhost", "127.0.0.1.evil.example:8000", None, "a:b"):
+        assert not check.allows(refused), refused
+    assert HostCheck(None, ["*"]).allows("anything.example")
+    with pytest.raises(ValueError, match=r"`allowed_hosts\[1\]`: malformed host 'a:b'"):
+        UiSettings(allowed_hosts="ui:8000,a:b")
 
 
 @pytest.mark.parametrize("env_token", [None, "", "changeme", "short-token"])
@@ -46,7 +82,8 @@ def test_bearer_matching_and_loopback_detection():
     assert not token_matches(STRONG, STRONG) and not token_matches(STRONG, "Bearer x") and not token_matches(STRONG, None)
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost") and is_loopback("127.1.2.3")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4")
-    assert allowed_origins("127.0.0.1", 8000, []) == ["http://127.0.0.1:8000", "http://localhost:8000"]
+    assert allowed_origins("127.0.0.1", 8000, []) == ["http://127.0.0.1:8000", "http://[::1]:8000",
+                                                      "http://localhost:8000"]  # fmt: skip
 
 
 def test_rate_limiter_allows_a_burst_then_asks_to_wait():

@@ -61,6 +61,8 @@ class UiAgent(Agent):
                               s.ui_host, s.data_dir, create_file=ui.create_token_file)  # fmt: skip
         if token.origin == "generated":
             log.warning("no LCMESH_API_TOKEN set: writes need the random token written to %s", token.path)
+        elif token.origin == "file" and s.api_token_file is None:
+            log.warning("no LCMESH_API_TOKEN set: writes need the token kept in %s", token.path)
         elif weak_token_reason(token.value) and is_loopback(s.ui_host):
             log.warning("the API token is weak (%s); acceptable on loopback only", weak_token_reason(token.value))
         sock = _bind(s.ui_host, s.ui_port)

@@ -1,16 +1,22 @@
 """The FastAPI application of the UI agent: REST API, live events, chat, /metrics and the web page.
 
 ``create_app(ctx)`` builds it around a ``UiContext`` (what the agent holds: the live store, the
-history reader, the bus gateway, the chat engine, the token). Errors are uniform JSON
-``{"detail": "..."}`` naming the field: 422 for bad input, 401 without the token, 404 for an
-unknown cabinet, tower or run, 409 for a configuration version conflict, 429 when chatting too
-fast, 503 with the reason when the mesh is not ready.
+history reader, the bus gateway, the chat engine, the token), behind the guards of ``guards.py``
+(Host allow-list, body limit, token before the body). Errors are uniform JSON ``{"detail": "..."}``
+naming the field: 422 for bad input, 400 for a body that is not JSON or a Host not allowed, 401
+without the token, 404 for an unknown cabinet, tower or run, 405 with every method of the path in
+``Allow``, 409 for a configuration version conflict, 413 for a body over 256 KiB, 429 when
+chatting too fast, 503 with the reason when the mesh is not ready. ``/openapi.json`` documents each
+(``openapi.py`` adds what only this site knows).
 """
 
 from __future__ import annotations
 
 import asyncio
+import difflib
+import functools
 import time
+import typing
 from collections.abc import Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
@@ -21,22 +27,27 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from lcmesh.mesh.agents.ui.answers import NotReady
 from lcmesh.mesh.agents.ui.chat import ChatEngine
 from lcmesh.mesh.agents.ui.config import UiSettings
 from lcmesh.mesh.agents.ui.gateway import MeshGateway, MeshRefused, MeshUnavailable
+from lcmesh.mesh.agents.ui.guards import BodyLimit, HostCheck, WriteAuth, routes_needing
 from lcmesh.mesh.agents.ui.live import EventHub, LiveStore
 from lcmesh.mesh.agents.ui.metrics import LatencyMiddleware, UiCollector, make_registry
-from lcmesh.mesh.agents.ui.security import ApiToken, RateLimiter, allowed_origins
+from lcmesh.mesh.agents.ui.openapi import site_openapi
+from lcmesh.mesh.agents.ui.security import ApiToken, RateLimiter, allowed_hosts, allowed_origins
 from lcmesh.mesh.history import HistoryReader
 from lcmesh.mesh.messages import ConfigDoc
 from lcmesh.mesh.settings import MeshSettings
 from lcmesh.twin.system import SystemDescription
 
 STATIC_DIR = Path(str(resources.files("lcmesh.mesh.agents.ui").joinpath("static")))
-MAX_BODY_BYTES = 256 * 1024
+MAX_BODY_BYTES = 256 * 1024  # the largest body a write needs is a manual action: a few KiB
 PAGE_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
             "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")  # fmt: skip
 
@@ -74,21 +85,43 @@ def _field(loc: tuple) -> str:
     return ".".join(str(p) for p in loc if p not in ("body",)) or "body"
 
 
-def _validation_detail(exc: RequestValidationError) -> str:
+def _validation_detail(exc: RequestValidationError, body_model: type[BaseModel] | None = None) -> str:
     lines = []
     for err in exc.errors():
         msg = err["msg"].removeprefix("Value error, ")
+        loc = tuple(err["loc"])
         if err["type"] == "extra_forbidden":
-            msg = "is not a known field"
+            msg = "is not a known field" + _closest(body_model, loc)
         elif "input" in err and isinstance(err["input"], (str, int, float)) and err["type"] != "missing":
             text = repr(err["input"])
             msg += f" (got {text[:60] + '...' if len(text) > 60 else text})"
-        lines.append(f"`{_field(tuple(err['loc']))}` {msg}")
+        lines.append(f"`{_field(loc)}` {msg}")
     return "; ".join(lines)
 
 
+def _closest(model: type[BaseModel] | None, loc: tuple) -> str:
+    """`` (did you mean 'x'?)`` for an unknown field at `loc` of a `model` body, or ''."""
+    if model is None or not loc or loc[0] != "body":
+        return ""
+    for part in loc[1:-1]:
+        info = model.model_fields.get(str(part))
+        options = [info.annotation, *typing.get_args(info.annotation)] if info else []
+        model = next((t for t in options if isinstance(t, type) and issubclass(t, BaseModel)), None)
+        if model is None:
+            return ""
+    close = difflib.get_close_matches(str(loc[-1]), model.model_fields, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _body_model(request: Request) -> type[BaseModel] | None:
+    """The pydantic model of the route's body parameter, if it has one."""
+    endpoint = getattr(request.scope.get("route"), "endpoint", None)
+    hints = typing.get_type_hints(endpoint, include_extras=False) if endpoint else {}
+    return next((t for t in hints.values() if isinstance(t, type) and issubclass(t, BaseModel)), None)
+
+
 def create_app(ctx: UiContext) -> FastAPI:
-    """The UI's FastAPI app around `ctx`."""
+    """The UI's FastAPI app around `ctx`, behind its guards (guards.py): Host allow-list, body limit, token first."""
     from lcmesh.mesh.agents.ui.routes import chat, control, read, stream
 
     app = FastAPI(
@@ -97,7 +130,8 @@ def create_app(ctx: UiContext) -> FastAPI:
         summary="REST API, live events, grounded chat and metrics of an lc-mesh site",
         description="Reads are open; writes (configuration, controller mode, manual setpoints) need "
                     "`Authorization: Bearer <token>`. Units at this edge: °C, kW, psi, fractions; cabinets, "
-                    "branches and towers count from 1. `/api/config` carries the mesh configuration as stored, in SI.",
+                    "branches and towers count from 1. `/api/config` carries the mesh configuration as stored, in SI. "
+                    f"Request bodies are at most {MAX_BODY_BYTES} bytes (413).",
         docs_url=None, redoc_url=None, lifespan=_lifespan(ctx),  # Swagger UI would load from a CDN: offline first
     )  # fmt: skip
     app.state.ctx = ctx
@@ -105,8 +139,19 @@ def create_app(ctx: UiContext) -> FastAPI:
     app.state.registry, histogram = make_registry(collector)
 
     @app.exception_handler(RequestValidationError)
-    async def _invalid(_request: Request, exc: RequestValidationError):
-        return JSONResponse({"detail": _validation_detail(exc), "errors": _jsonable(exc.errors())}, status_code=422)
+    async def _invalid(request: Request, exc: RequestValidationError):
+        detail = _validation_detail(exc, _body_model(request))
+        return JSONResponse({"detail": detail, "errors": _jsonable(exc.errors())}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException):
+        headers = dict(exc.headers or {})
+        if exc.status_code == 405:  # Allow: every method of the path, not only the first route's
+            allow = _methods(api_routes, request.url.path)
+            headers["Allow"] = ", ".join(allow)
+            detail = f"{request.method} is not allowed on {request.url.path}; use {' or '.join(allow)}"
+            return JSONResponse({"detail": detail}, status_code=405, headers=headers)
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=headers)
 
     @app.exception_handler(NotReady)
     async def _not_ready(_request: Request, exc: NotReady):
@@ -122,31 +167,26 @@ def create_app(ctx: UiContext) -> FastAPI:
 
     for module in (read, control, chat, stream):
         app.include_router(module.router)
+    # the routers' own routes: the app's list may hold them by reference only (FastAPI includes routers lazily)
+    api_routes = [r for module in (read, control, chat, stream) for r in module.router.routes if isinstance(r, APIRoute)]
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    app.openapi = functools.cache(lambda: site_openapi(app, ctx.system, ctx.ui))  # FastAPI's documented override
+    # the last added runs first: Host allow-list, CORS, latency, body limit, token, then the routes
+    app.add_middleware(WriteAuth, routes=routes_needing(api_routes, control.require_token),
+                       token=lambda: ctx.token.value)  # fmt: skip
+    app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)
+    app.add_middleware(LatencyMiddleware, histogram=histogram)
     origins = allowed_origins(ctx.settings.ui_host, ctx.settings.ui_port, ctx.ui.cors_origins)
     app.add_middleware(CORSMiddleware, allow_origins=origins, allow_methods=["GET", "PUT", "POST"],
                        allow_headers=["Authorization", "Content-Type"], max_age=600)  # fmt: skip
-    app.add_middleware(LatencyMiddleware, histogram=histogram)
-    app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)
-
+    app.add_middleware(HostCheck, allowed=allowed_hosts(ctx.settings.ui_host, ctx.settings.ui_port,
+                                                        ctx.ui.allowed_hosts))  # fmt: skip
     return app
 
 
-class BodyLimit:
-    """Refuse request bodies announced larger than `max_bytes` (413) before anything reads them."""
-
-    def __init__(self, app, max_bytes: int):
-        self.app, self.max_bytes = app, max_bytes
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] == "http":
-            length = dict(scope.get("headers") or []).get(b"content-length")
-            if length is not None and (not length.isdigit() or int(length) > self.max_bytes):
-                response = JSONResponse({"detail": f"the request body must be at most {self.max_bytes} bytes"},
-                                        status_code=413)  # fmt: skip
-                await response(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
+def _methods(routes: list[APIRoute], path: str) -> list[str]:
+    """The methods `routes` serve on `path` (HEAD goes with GET, OPTIONS with CORS)."""
+    return sorted({m for r in routes if r.path_regex.match(path) for m in r.methods} - {"HEAD"})
 
 
 def _lifespan(ctx: UiContext):

@@ -12,6 +12,8 @@ from typing import Annotated, Literal
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from lcmesh.mesh.agents.ui.security import parse_host
+
 
 class UiSettings(BaseSettings):
     """Knobs of the REST API, the live page and the chat."""
@@ -24,6 +26,10 @@ class UiSettings(BaseSettings):
     )
     cors_origins: Annotated[list[str], NoDecode] = Field(
         [], description="extra origins allowed to call the API from a browser (the page's own origin always is)"
+    )
+    allowed_hosts: Annotated[list[str], NoDecode] = Field(
+        [], description="extra Host header values the UI answers to (host or host:port, comma list; * for any); "
+        "the bind host, 127.0.0.1, localhost and [::1] with the port always are (DNS rebinding)"
     )
     chat_rate_per_min: float = Field(30.0, gt=0, le=100_000, description="chat requests per minute and client")
     chat_burst: int = Field(10, ge=1, le=100_000, description="chat requests a client may send at once")
@@ -41,9 +47,20 @@ class UiSettings(BaseSettings):
     history_max_points: int = Field(5000, ge=10, le=200_000, description="most rows one /api/history answer holds")
     bus_timeout_s: float = Field(3.0, gt=0, le=60, description="wait this long for a queryable (config, tools)")
 
-    @field_validator("cors_origins", mode="before")
+    @field_validator("cors_origins", "allowed_hosts", mode="before")
     @classmethod
     def _split(cls, value: object) -> object:
         if isinstance(value, str):
             return [part.strip() for part in value.split(",") if part.strip()]
+        return value
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _hosts(cls, value: list[str]) -> list[str]:
+        for i, entry in enumerate(value):
+            if entry != "*":
+                try:
+                    parse_host(entry)
+                except ValueError as exc:
+                    raise ValueError(f"`allowed_hosts[{i}]`: {exc}") from None
         return value

@@ -1,8 +1,8 @@
 """``/metrics`` for Prometheus: plant gauges from the latest state, mesh counters, agents, API latency.
 
-Names follow Prometheus conventions: base units in the name (``_celsius``, ``_watts``,
-``_pascals``, ``_kilograms_per_second``, ``_ratio``, ``_seconds``, ``_bytes``), counters end in
-``_total``; labels ``cdu``, ``cabinet``, ``branch``, ``blade_group``, ``tower``, ``agent``, ``role``,
+Names follow Prometheus conventions and pass ``promtool check metrics``: base units in the name
+(``_celsius``, ``_watts``, ``_pascals``, ``_grams_per_second`` (the base unit of mass is the gram),
+``_ratio``, ``_seconds``, ``_bytes``), counters end in ``_total``; labels ``cdu``, ``cabinet``, ``branch``, ``blade_group``, ``tower``, ``agent``, ``role``,
 ``source``, ``severity``, ``intent``. One CDU serves each cabinet in the twin, so ``cdu`` equals
 ``cabinet``; numbers count from 1. Plant gauges are computed at scrape time from the state the UI
 holds, so a scrape costs nothing between scrapes. Counters count from the UI agent's start.
@@ -24,24 +24,38 @@ from lcmesh.twin.system import SystemDescription
 
 K0 = 273.15
 P = "lcmesh_"
-# (metric suffix, output block, K->°C?, help), per cabinet
+
+
+def _celsius(kelvin: float) -> float:
+    return kelvin - K0
+
+
+def _grams(kilograms: float) -> float:
+    return kilograms * 1e3
+
+
+def _same(value: float) -> float:
+    return value
+
+
+# (metric suffix, output block, SI -> the metric's unit, help), per cabinet
 CDU_GAUGES = (
-    ("cdu_supply_temperature_celsius", "supply_temp_k", True, "CDU secondary supply temperature"),
-    ("cdu_supply_setpoint_celsius", "applied_supply_setpoint_k", True, "CDU supply temperature setpoint in force"),
-    ("cdu_return_temperature_celsius", "return_temp_k", True, "CDU secondary return temperature"),
-    ("cdu_secondary_flow_kilograms_per_second", "secondary_flow_kg_s", False, "CDU secondary coolant flow"),
-    ("cdu_differential_pressure_pascals", "cabinet_dp_pa", False, "cabinet differential pressure"),
-    ("cdu_differential_pressure_setpoint_pascals", "applied_dp_setpoint_pa", False, "dp setpoint in force"),
-    ("cdu_pump_power_watts", "cdu_pump_power_w", False, "CDU pump electrical power"),
-    ("cdu_heat_watts", "cdu_heat_w", False, "heat removed by the CDU"),
+    ("cdu_supply_temperature_celsius", "supply_temp_k", _celsius, "CDU secondary supply temperature"),
+    ("cdu_supply_setpoint_celsius", "applied_supply_setpoint_k", _celsius, "CDU supply temperature setpoint in force"),
+    ("cdu_return_temperature_celsius", "return_temp_k", _celsius, "CDU secondary return temperature"),
+    ("cdu_secondary_flow_grams_per_second", "secondary_flow_kg_s", _grams, "CDU secondary coolant flow"),
+    ("cdu_differential_pressure_pascals", "cabinet_dp_pa", _same, "cabinet differential pressure"),
+    ("cdu_differential_pressure_setpoint_pascals", "applied_dp_setpoint_pa", _same, "dp setpoint in force"),
+    ("cdu_pump_power_watts", "cdu_pump_power_w", _same, "CDU pump electrical power"),
+    ("cdu_heat_watts", "cdu_heat_w", _same, "heat removed by the CDU"),
 )  # fmt: skip
 TOWER_GAUGES = (
-    ("tower_leaving_water_temperature_celsius", "ct_leaving_temp_k", True, "cooling-tower leaving water temperature"),
-    ("tower_leaving_water_setpoint_celsius", "applied_lw_setpoint_k", True, "leaving-water setpoint in force"),
-    ("tower_approach_celsius", "approach_k", False, "leaving water minus wet bulb"),
-    ("tower_fan_speed_ratio", "fan_speed", False, "fan speed as a fraction of nominal"),
-    ("tower_cells_active", "cells_active", False, "cells running"),
-    ("tower_pump_power_watts", "ct_pump_power_w", False, "tower pump electrical power"),
+    ("tower_leaving_water_temperature_celsius", "ct_leaving_temp_k", _celsius, "cooling-tower leaving water temperature"),
+    ("tower_leaving_water_setpoint_celsius", "applied_lw_setpoint_k", _celsius, "leaving-water setpoint in force"),
+    ("tower_approach_celsius", "approach_k", _same, "leaving water minus wet bulb"),
+    ("tower_fan_speed_ratio", "fan_speed", _same, "fan speed as a fraction of nominal"),
+    ("tower_cells_active", "cells_active", _same, "cells running"),
+    ("tower_pump_power_watts", "ct_pump_power_w", _same, "tower pump electrical power"),
 )  # fmt: skip
 PLANT_GAUGES = (
     ("it_power_watts", "it_power_w", "IT power of all blade groups"),
@@ -89,20 +103,20 @@ class UiCollector(Collector):
                 branch_t.add_metric([cab, cab, str(j + 1)], float(out["branch_temp_k"][i, j]) - K0)
                 valve.add_metric([cab, cab, str(j + 1)], float(out["applied_valve_fraction"][i, j]))
         yield from (blade, branch_t, valve)
-        for suffix, block, celsius, help_text in CDU_GAUGES:
+        for suffix, block, convert, help_text in CDU_GAUGES:
             g = GaugeMetricFamily(P + suffix, help_text, labels=["cdu", "cabinet"])
             for i, v in enumerate(np.asarray(out[block], dtype=float).ravel()):
-                g.add_metric([str(i + 1), str(i + 1)], float(v) - (K0 if celsius else 0.0))
+                g.add_metric([str(i + 1), str(i + 1)], convert(float(v)))
             yield g
         fans = np.asarray(out["cell_fan_power_w"], dtype=float)
         g = GaugeMetricFamily(P + "tower_fan_power_watts", "fan power of one tower", labels=["tower"])
         for t in range(fans.shape[0]):
             g.add_metric([str(t + 1)], float(fans[t].sum()))
         yield g
-        for suffix, block, celsius, help_text in TOWER_GAUGES:
+        for suffix, block, convert, help_text in TOWER_GAUGES:
             g = GaugeMetricFamily(P + suffix, help_text, labels=["tower"])
             for t, v in enumerate(np.asarray(out[block], dtype=float).ravel()):
-                g.add_metric([str(t + 1)], float(v) - (K0 if celsius else 0.0))
+                g.add_metric([str(t + 1)], convert(float(v)))
             yield g
         for suffix, block, help_text in PLANT_GAUGES:
             yield GaugeMetricFamily(P + suffix, help_text, value=float(np.asarray(out[block]).sum()))

@@ -6,21 +6,83 @@ count from 1. Inside the mesh everything stays SI.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+import difflib
+import typing
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator, model_validator
 
 from lcmesh.mesh.agents.ui.facts import ChatFact
+from lcmesh.mesh.messages import MeshConfig
+from lcmesh.twin.controllers import REGISTRY
+
+
+def _integer(value: object) -> object:
+    """JSON Schema's integer: 3 and 3.0, not 3.5, "3" or true (strict pydantic refuses 3.0, lax accepts "3")."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(value, float)
+                                                                         and not value.is_integer()):  # fmt: skip
+        raise ValueError("must be an integer")
+    return int(value)
+
+
+def json_int(*constraints: Any) -> Any:
+    """An integer as JSON Schema has it, with `constraints` (``Field(ge=1)``; before the validator, so the schema shows
+    them)."""
+    return Annotated[(int, *constraints, BeforeValidator(_integer))]
 
 
 class _In(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """A request body: unknown fields, non-finite numbers and loose types (``true`` for 1) refused."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
+# --- errors ---------------------------------------------------------------------------------------
+class FieldError(BaseModel):
+    loc: list[str]
+    msg: str
+    type: str
+
+
+class ErrorAnswer(BaseModel):
+    """Every error: `detail` names the field and says what would be valid; 422s from validation add `errors`."""
+
+    detail: str
+    errors: list[FieldError] | None = Field(None, description="422 from request validation: one item per problem")
+
+
+def _header(description: str) -> dict:
+    return {"description": description, "schema": {"type": "string"}}
+
+
+ERRORS: dict[int, dict[str, Any]] = {
+    400: {"description": "the body is not valid JSON text (UTF-8)"},
+    401: {"description": "missing or wrong bearer token", "headers": {"WWW-Authenticate": _header("Bearer")}},
+    404: {"description": "no such cabinet, tower or run; `detail` gives the valid range"},
+    409: {"description": "`expected_version` is not the current version"},
+    413: {"description": "the request body is larger than 256 KiB"},
+    422: {"description": "invalid input; `detail` names the field and says what would be valid"},
+    429: {"description": "too many questions; retry after `Retry-After` seconds",
+          "headers": {"Retry-After": _header("seconds to wait")}},
+    503: {"description": "the mesh is not ready; `detail` says why",
+          "headers": {"Retry-After": _header("seconds to wait")}},
+}  # fmt: skip
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI `responses` for the error `codes` of a route, all with the ErrorAnswer body."""
+    return {code: {"model": ErrorAnswer, **ERRORS[code]} for code in codes}
+
+
+# --- reads ----------------------------------------------------------------------------------------
 class Health(BaseModel):
-    status: Literal["ok", "degraded", "starting"]
-    ready: bool
+    status: Literal["ok", "degraded", "starting"] = Field(
+        description="ok; degraded: it answers, but something is missing or old (`reasons`), e.g. the Sensor is "
+        "down; starting: no plant state or history yet"
+    )
+    ready: bool = Field(description="the data endpoints can answer (a plant state and the history file are there)")
     reasons: list[str]
+    sensor_alive: bool = Field(description="the Sensor agent's liveliness token is present")
     agent_id: str
     site: str
     system: str
@@ -83,25 +145,157 @@ class HistoryAnswer(BaseModel):
     run_id: str | None
     fields: list[str]
     units: dict[str, str]
+    start_step: int = Field(description="first step of the range asked (every bound given applies)")
+    end_step: int | None = Field(description="last step of the range asked; null: up to the newest")
     every: int
     rows: list[dict[str, float | int | None]]
+
+
+class AgentView(BaseModel):
+    agent_id: str
+    role: str
+    alive: bool
+    since: str | None
+    pid: int | None
+    uptime_s: float | None
+    cpu_pct: float | None
+    rss_bytes: int | None
+    msgs_in: int
+    msgs_out: int
+    invalid: int
+    handler_errors: int
+    latency_ms_p99: float | None
+    stats_age_s: float | None
+    advice: list[str]
+
+
+class AgentsAnswer(BaseModel):
+    agents: list[AgentView]
+    recommendations: list[dict[str, Any]]
+    fallback_steps_last_minute: int | None
+
+
+class ActionView(BaseModel):
+    """An applied action in operator units."""
+
+    supply_temp_setpoint_c: list[float]
+    dp_setpoint_psi: list[float]
+    valve_fractions: list[list[float]]
+    lw_setpoint_c: list[float]
+
+
+class DecisionRow(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    step: int
+    time_s: float
+    decision_id: str | None
+    source_controller: str
+    source_version: str
+    fallback: bool
+    fallback_reason: str | None
+    rejected_reason: str | None
+    clamps: list[dict[str, Any]]
+    latency_ms: float | None
+    action: ActionView
+    explanation: str | None
+
+
+class DecisionsAnswer(BaseModel):
+    source: Literal["history", "memory"] = Field(description="history: the SQLite file; memory: what the UI saw")
+    decisions: list[DecisionRow]
+
+
+class AlertRow(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    alert_id: str
+    state: Literal["raised", "cleared"]
+    kind: str
+    severity: Literal["info", "warning", "critical"]
+    location: str
+    message: str
+    evidence: dict[str, Any]
+    prescription: str
+    predicted_failure_s: float | None
+    step: int | None
+    time_s: float | None
+    source: str
+
+
+class AlertsAnswer(BaseModel):
+    source: Literal["history", "memory"]
+    alerts: list[AlertRow]
+
+
+def _strict_copy(model: type[BaseModel], *, partial: bool) -> type[BaseModel]:
+    """`model` with strict types and, if `partial`, nothing required (nested sections alike): what may merge into it.
+
+    A section (a field whose type is a model) is partial too, since nested dicts merge; a field that
+    is a model or null (``manual_action``) is replaced whole, so its copy keeps every field required.
+    Rules between fields stay with the model itself (the Configuration agent checks the merged document).
+    """
+    fields: dict[str, Any] = {}
+    for name, info in model.model_fields.items():
+        annotation, metadata = info.annotation, info.metadata
+        args = typing.get_args(annotation)
+        if annotation is int:
+            annotation, metadata = json_int(*info.metadata), []
+        elif isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            annotation = _strict_copy(annotation, partial=partial)
+        elif type(None) in args and any(isinstance(a, type) and issubclass(a, BaseModel) for a in args):
+            annotation = typing.Union[tuple(_strict_copy(a, partial=False) if isinstance(a, type) and
+                                            issubclass(a, BaseModel) else a for a in args)]  # fmt: skip
+        typed = Annotated[(annotation, *metadata)] if metadata else annotation
+        default = Field(None, description=info.description) if partial else Field(description=info.description)
+        fields[name] = (typed, default)
+    return create_model(f"{model.__name__}{'Change' if partial else 'Whole'}", __doc__=model.__doc__,
+                        __config__=_In.model_config, **fields)  # fmt: skip
+
+
+MeshConfigChange = _strict_copy(MeshConfig, partial=True)
 
 
 class ConfigChange(_In):
     """A partial configuration (nested dicts merge), why, and optionally the version it was based on."""
 
-    changes: dict[str, Any] = Field(description="e.g. {\"guardrails\": {\"supply_temp_max_k\": 310.15}}")
+    changes: MeshConfigChange = Field(  # type: ignore[valid-type]
+        description="a partial configuration, e.g. {\"guardrails\": {\"supply_temp_max_k\": 310.15}}"
+    )
     reason: str = Field("", max_length=500)
-    expected_version: int | None = Field(None, ge=1, description="refuse (409) if the configuration moved on")
+    expected_version: json_int(Field(ge=1, le=2**53)) | None = Field(  # type: ignore[valid-type]
+        None, description="refuse (409) if the configuration moved on"
+    )
+
+
+def _at_least_one(*fields: str) -> dict:
+    """JSON Schema: at least one of `fields` present and not null (what the model validator checks)."""
+    return {"anyOf": [{"required": [f], "properties": {f: {"not": {"type": "null"}}}} for f in fields]}
+
+
+MODE_FIELDS = ("controller", "mode")
 
 
 class ModeRequest(_In):
     """Switch the controller and/or auto / manual mode."""
 
-    controller: str | None = Field(None, min_length=1, max_length=64, description="g36, tree, ppo, static, llm")
+    model_config = ConfigDict(json_schema_extra=_at_least_one(*MODE_FIELDS))
+
+    controller: Literal[tuple(sorted(REGISTRY))] | None = Field(  # type: ignore[valid-type]
+        None, description="a registered controller"
+    )
     mode: Literal["auto", "manual"] | None = Field(None, description="manual holds the current action unless "
                                                    "setpoints are sent to /api/control/setpoints")  # fmt: skip
     reason: str = Field("", max_length=500)
+
+    @field_validator("controller", mode="before")
+    @classmethod
+    def _known(cls, value: object) -> object:
+        if isinstance(value, str) and value not in REGISTRY:
+            close = difflib.get_close_matches(value, REGISTRY, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ValueError(f"must be one of {', '.join(sorted(REGISTRY))}{hint}")
+        return value
 
     @model_validator(mode="after")
     def _something(self) -> "ModeRequest":
@@ -110,27 +304,36 @@ class ModeRequest(_In):
         return self
 
 
-PerCabinet = float | list[float]
+# Wide bounds that catch typos (and keep non-finite numbers out); the guardrails clamp further to the configured
+# limits. The OpenAPI document adds this site's counts (a list holds one value per cabinet, tower or branch).
+TempC = Annotated[float, Field(ge=0, le=80)]
+Psi = Annotated[float, Field(ge=0, le=100)]
+Fraction = Annotated[float, Field(ge=0, le=1)]
+SETPOINT_FIELDS = ("supply_temp_setpoint_c", "dp_setpoint_psi", "lw_setpoint_c", "valve_fractions")
 
 
 class SetpointsRequest(_In):
     """Manual setpoints in operator units; a scalar applies to every selected cabinet (or tower)."""
 
-    supply_temp_setpoint_c: PerCabinet | None = None
-    dp_setpoint_psi: PerCabinet | None = None
-    lw_setpoint_c: PerCabinet | None = None
-    valve_fractions: list[float] | list[list[float]] | None = Field(
-        None, description="one split for the selected cabinets, or one row per cabinet; each row sums to 1"
+    model_config = ConfigDict(json_schema_extra=_at_least_one(*SETPOINT_FIELDS))
+
+    supply_temp_setpoint_c: TempC | list[TempC] | None = Field(None, description="°C, one for the selected "
+                                                               "cabinets or one per cabinet")  # fmt: skip
+    dp_setpoint_psi: Psi | list[Psi] | None = Field(None, description="psi, one or one per cabinet")
+    lw_setpoint_c: TempC | list[TempC] | None = Field(None, description="°C, one for every tower or one per tower")
+    valve_fractions: list[Fraction] | list[list[Fraction]] | None = Field(
+        None, description="one split (a fraction per branch) for the selected cabinets, or one row per cabinet; the "
+        "guardrails raise fractions below v_min and rescale each row to sum to 1 (reported in `clamps_expected`)"
     )
-    cabinets: list[int] | None = Field(None, description="1-based cabinets a scalar or single split applies to")
+    cabinets: list[json_int(Field(ge=1))] | None = Field(  # type: ignore[valid-type]
+        None, description="1-based cabinets a scalar or single split applies to (default: all)"
+    )
     reason: str = Field("", max_length=500)
 
     @model_validator(mode="after")
     def _something(self) -> "SetpointsRequest":
-        if all(v is None for v in (self.supply_temp_setpoint_c, self.dp_setpoint_psi, self.lw_setpoint_c,
-                                   self.valve_fractions)):  # fmt: skip
-            raise ValueError("give at least one of `supply_temp_setpoint_c`, `dp_setpoint_psi`, `lw_setpoint_c`, "
-                             "`valve_fractions`")  # fmt: skip
+        if all(getattr(self, f) is None for f in SETPOINT_FIELDS):
+            raise ValueError(f"give at least one of {', '.join(f'`{f}`' for f in SETPOINT_FIELDS)}")
         return self
 
 
@@ -145,7 +348,8 @@ class ControlAnswer(BaseModel):
 
 
 class ChatQuestion(_In):
-    message: str = Field(min_length=1, description="the operator's question (plain text; never executed)")
+    message: str = Field(min_length=1, description="the operator's question (plain text; never executed; at most "
+                         "LCMESH_UI_CHAT_MAX_CHARS characters)")  # fmt: skip
 
 
 class ChatAnswer(BaseModel):

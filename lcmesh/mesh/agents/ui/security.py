@@ -3,9 +3,12 @@
 - Writes (config, controller mode, setpoints) need ``Authorization: Bearer <token>``. The token
   comes from ``LCMESH_API_TOKEN`` or the file ``LCMESH_API_TOKEN_FILE`` (created with a random
   token when missing if ``LCMESH_UI_CREATE_TOKEN_FILE=true``). Bound to loopback with neither
-  set, the agent makes a random token and writes it to ``DATA_DIR/ui/api-token`` (mode 0600) so
-  a local operator can read it; bound beyond loopback it refuses to start without a strong token
-  (at least 16 characters, not a well-known default).
+  set, the agent makes a random token once and writes it to ``DATA_DIR/ui/api-token`` (mode
+  0600) so a local operator can read it; a restarted UI (the orchestrator restarts a hung one)
+  reads that file again, so the operators' token keeps working. Bound beyond loopback it refuses
+  to start without a strong token (at least 16 characters, not a well-known default).
+- Host allow-list: the bind host, 127.0.0.1, localhost and [::1] with the port, plus
+  ``LCMESH_UI_ALLOWED_HOSTS`` (DNS rebinding; ``guards.HostCheck`` enforces it).
 - CORS: only the page's own origin (and ``LCMESH_UI_CORS_ORIGINS``) may call the API from a browser.
 - Chat: a token bucket per client address.
 """
@@ -16,6 +19,7 @@ import hmac
 import ipaddress
 import os
 import secrets
+import stat
 import threading
 import time
 from collections import OrderedDict
@@ -72,7 +76,7 @@ def resolve_token(env_token: str | None, token_file: Path | None, host: str, dat
     if env_token is not None and env_token.strip():
         token = ApiToken(env_token.strip(), "env")
     elif token_file is not None and create_file and not Path(token_file).exists():
-        return _generated(Path(token_file))
+        return _kept_or_generated(Path(token_file))
     elif token_file is not None:
         try:
             text = Path(token_file).read_text().strip()
@@ -80,7 +84,7 @@ def resolve_token(env_token: str | None, token_file: Path | None, host: str, dat
             raise InsecureBindError(f"`LCMESH_API_TOKEN_FILE` = {token_file} can not be read: {exc}") from None
         token = ApiToken(text, "file", Path(token_file))
     elif is_loopback(host):
-        return _generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
+        return _kept_or_generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
     else:
         raise InsecureBindError(
             f"the UI would listen on {host} (beyond loopback) with no API token; set LCMESH_API_TOKEN or "
@@ -94,18 +98,35 @@ def resolve_token(env_token: str | None, token_file: Path | None, host: str, dat
             f"use a random string of at least {MIN_TOKEN_CHARS} characters (e.g. `openssl rand -hex 24`)"
         )
     if not token.value:
-        return _generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
+        return _kept_or_generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
     return token
 
 
-def _generated(path: Path) -> ApiToken:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    value = secrets.token_urlsafe(32)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as f:
-        f.write(value + "\n")
-    os.chmod(path, 0o600)
-    return ApiToken(value, "generated", path)
+def _kept_or_generated(path: Path) -> ApiToken:
+    """The token in `path` if it holds one (a restart keeps it), else a random one written there once (0600)."""
+    for _ in range(2):
+        try:
+            value = path.read_text().strip()
+        except FileNotFoundError:
+            value = None
+        except OSError as exc:
+            raise InsecureBindError(f"the API token file {path} can not be read: {exc}") from None
+        if value:
+            if stat.S_IMODE(path.stat().st_mode) & 0o077:
+                os.chmod(path, 0o600)  # it is a secret: the owner's alone
+            return ApiToken(value, "file", path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        value = secrets.token_urlsafe(32)
+        flags = os.O_WRONLY | os.O_CREAT | (os.O_TRUNC if path.exists() else os.O_EXCL)  # an empty file is replaced
+        try:
+            fd = os.open(path, flags, 0o600)
+        except FileExistsError:  # another UI made it between our read and our create: read theirs
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(value + "\n")
+        os.chmod(path, 0o600)
+        return ApiToken(value, "generated", path)
+    raise InsecureBindError(f"the API token file {path} stays empty; remove it or write a token into it")
 
 
 def token_matches(expected: str, authorization: str | None) -> bool:
@@ -119,9 +140,36 @@ def token_matches(expected: str, authorization: str | None) -> bool:
 
 
 def allowed_origins(host: str, port: int, extra: list[str]) -> list[str]:
-    """The page's own origins (both loopback spellings when local) plus the configured extra ones."""
-    hosts = {host, "127.0.0.1", "localhost"} if is_loopback(host) else {host}
-    return sorted({f"http://{h}:{port}" for h in hosts} | set(extra))
+    """The page's own origins (every loopback spelling when local) plus the configured extra ones."""
+    hosts = {host, "127.0.0.1", "localhost", "[::1]"} if is_loopback(host) else {host}
+    return sorted({f"http://{_bracketed(h)}:{port}" for h in hosts} | set(extra))
+
+
+def allowed_hosts(host: str, port: int, extra: list[str]) -> list[str]:
+    """``Host`` header values the UI answers to: the bind host and the loopback names with `port`, plus `extra`."""
+    own = [f"{_bracketed(h)}:{port}" for h in dict.fromkeys((host, "127.0.0.1", "localhost", "::1"))]
+    return own + [e for e in extra if e not in own]
+
+
+def parse_host(value: str) -> tuple[str, int | None]:
+    """``host[:port]`` (IPv6 in brackets) as (lower-case host, port or None); ValueError if malformed."""
+    text = value.strip().lower()
+    if text.startswith("["):
+        end = text.find("]")
+        host, rest = (text[: end + 1], text[end + 1 :]) if end > 0 else (text, "?")
+    else:
+        host, colon, port_text = text.partition(":")
+        rest = colon + port_text
+    port = rest[1:] if rest.startswith(":") else None
+    host = host.rstrip(".")  # "localhost." is localhost
+    if (not host or (rest and port is None) or any(ch in host for ch in "/@ \\?#:" if not host.startswith("["))
+            or (port is not None and not (port.isdigit() and len(port) <= 5))):  # fmt: skip
+        raise ValueError(f"malformed host {value!r}: expected host, host:port or [ipv6]:port")
+    return host, None if port is None else int(port)
+
+
+def _bracketed(host: str) -> str:
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
 
 
 class RateLimiter:

@@ -6,15 +6,12 @@ import math
 
 from fastapi import APIRouter, HTTPException, Request
 
-from lcmesh.mesh.agents.ui.schemas import ChatAnswer, ChatQuestion
+from lcmesh.mesh.agents.ui.schemas import ChatAnswer, ChatQuestion, errors
 
 router = APIRouter()
 
 
-@router.post("/api/chat", response_model=ChatAnswer, tags=["chat"],
-             responses={422: {"description": "empty or too long message"},
-                        429: {"description": "too many questions; retry after `Retry-After` seconds"},
-                        503: {"description": "the data the answer needs is not there yet"}})  # fmt: skip
+@router.post("/api/chat", response_model=ChatAnswer, tags=["chat"], responses=errors(400, 413, 422, 429, 503))
 def chat(request: Request, body: ChatQuestion) -> dict:
     """Answer an operator question from facts (state, history, decisions, toolbox).
 

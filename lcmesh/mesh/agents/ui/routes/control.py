@@ -1,5 +1,9 @@
 """Authenticated writes: configuration changes, controller / mode switch, manual setpoints.
 
+The token is checked twice: by ``guards.WriteAuth`` before the body is read (it finds these routes
+by their ``require_token`` dependency), and by that dependency, which also puts the bearer scheme
+in the OpenAPI document.
+
 All three go to the Configuration agent's ``config/all`` queryable as a ``ConfigUpdate``; it
 validates (pydantic, the controller registry, the guardrails against the plant), versions,
 persists and publishes. The Sensor applies the result through the guardrails, which clamp and
@@ -15,18 +19,17 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from lcmesh.mesh.agents.ui.answers import NotReady
-from lcmesh.mesh.agents.ui.schemas import ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest
+from lcmesh.mesh.agents.ui.schemas import ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest, errors
 from lcmesh.mesh.agents.ui.security import token_matches
 from lcmesh.mesh.agents.ui.views import c, psi
-from lcmesh.mesh.messages import ActionModel
+from lcmesh.mesh.messages import ActionModel, ConfigDoc
 from lcmesh.mesh.tools.guardrails import apply_guardrails
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import PSI_TO_PA
 
 router = APIRouter()
 bearer = HTTPBearer(auto_error=False, description="the API token (LCMESH_API_TOKEN or LCMESH_API_TOKEN_FILE)")
-AUTH = {401: {"description": "missing or wrong bearer token"}, 422: {"description": "invalid; `detail` names the field"},
-        503: {"description": "the Configuration agent does not answer"}}  # fmt: skip
+AUTH = errors(400, 401, 413, 422, 503)
 K0 = 273.15
 
 
@@ -46,11 +49,11 @@ def _by(caller: str) -> str:
     return f"api@{caller}"[:64]
 
 
-@router.put("/api/config", tags=["write"], responses={**AUTH, 409: {"description": "`expected_version` is stale"}})
+@router.put("/api/config", response_model=ConfigDoc, tags=["write"], responses={**AUTH, **errors(409)})
 def put_config(request: Request, body: ConfigChange, caller: Caller) -> dict:
     """Change the configuration (a partial document; nested sections merge). Returns the new version."""
-    doc = request.app.state.ctx.require_gateway().update_config(body.changes, _by(caller), body.reason,
-                                                                body.expected_version)  # fmt: skip
+    changes = body.changes.model_dump(exclude_unset=True)  # what was sent, typed: the rest merges from the current
+    doc = request.app.state.ctx.require_gateway().update_config(changes, _by(caller), body.reason, body.expected_version)
     return doc.model_dump(mode="json")
 
 
@@ -94,25 +97,22 @@ def _per_item(name: str, value, count: int, selected: list[int], current: np.nda
     return out
 
 
-def _valves(value, selected: list[int], current: np.ndarray) -> np.ndarray:
+def _valves(value: list, selected: list[int], current: np.ndarray) -> np.ndarray:
+    """One split for the selected cabinets or a row per cabinet; the guardrails make each row sum to 1 (reported)."""
     C, B = current.shape
-    rows = np.asarray(value, dtype=float)
-    if rows.ndim == 1:
-        if rows.size != B:
-            raise HTTPException(422, f"`valve_fractions` must hold {B} fractions (one per branch), got {rows.size}")
-        out = current.copy()
-        out[selected] = rows
-    elif rows.shape == (C, B):
-        out = rows
-    else:
-        raise HTTPException(422, f"`valve_fractions` must be {B} fractions or {C} rows of {B}, got shape {rows.shape}")
-    bad = [i + 1 for i, row in enumerate(out) if np.any(row < 0) or abs(row.sum() - 1.0) > 1e-3]
-    if bad:
-        raise HTTPException(422, f"`valve_fractions`: each row must be >= 0 and sum to 1; cabinet(s) {bad} do not")
+    if value and isinstance(value[0], list):
+        if len(value) != C or any(len(row) != B for row in value):
+            raise HTTPException(422, f"`valve_fractions` must be {B} fractions or {C} rows of {B}, got "
+                                     f"{len(value)} rows of {sorted({len(row) for row in value})}")  # fmt: skip
+        return np.asarray(value, dtype=float)
+    if len(value) != B:
+        raise HTTPException(422, f"`valve_fractions` must hold {B} fractions (one per branch), got {len(value)}")
+    out = current.copy()
+    out[selected] = np.asarray(value, dtype=float)
     return out
 
 
-@router.post("/api/control/setpoints", response_model=ControlAnswer, tags=["write"], responses=AUTH)
+@router.post("/api/control/setpoints", response_model=ControlAnswer, tags=["write"], responses={**AUTH, **errors(404)})
 def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) -> ControlAnswer:
     """Manual setpoints (°C, psi, fractions) on top of the action applied now; switches to manual mode.
 
