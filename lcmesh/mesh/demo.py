@@ -24,7 +24,7 @@ from lcmesh.mesh.messages import AgentEvent, ConfigDoc, ConfigUpdate
 from lcmesh.mesh.processes import (
     Child, agent_child, child_env, read_pidfile, router_child, same_process, tcp_host_port, wait_for_port,
 )  # fmt: skip
-from lcmesh.mesh.security import ensure_secrets
+from lcmesh.mesh.security import ensure_secrets, private_dir
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.demo")
@@ -46,6 +46,7 @@ class Demo:
 
     def start(self) -> None:
         s = self.settings
+        private_dir(s.data_dir)  # history, config, logs and secrets: the run's owner only
         s.log_dir.mkdir(parents=True, exist_ok=True)
         if s.bus_auth:  # before any process needs them; the router would create them too
             ensure_secrets(s.secrets_path)
