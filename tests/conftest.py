@@ -1,10 +1,61 @@
-"""Shared fixtures: FMUs are built once per session into a private cache folder."""
+"""Shared fixtures: FMUs are built once per session into a private cache folder; no test leaves a thread running."""
 
 from __future__ import annotations
 
 import os
+import threading
 
 import pytest
+
+THREAD_EXIT_GRACE_S = 10.0  # a thread told to stop may still be on its way out when its owner returns
+_STARTED_BY: dict[threading.Thread, str] = {}  # a thread found running after a test -> that test's id
+
+
+def _running_threads(exclude: set[threading.Thread]) -> list[threading.Thread]:
+    """Non-daemon Python threads alive now, besides ``exclude``.
+
+    Daemon threads are left out: foreign threads that call into Python (zenoh's callbacks) show up
+    as daemon ``_DummyThread`` objects that never end, and the agents' own threads are daemons that
+    ``Agent.stop`` joins.
+    """
+    return [t for t in threading.enumerate() if t not in exclude and not t.daemon and t.is_alive()]
+
+
+def _fail_if_left(threads: list[threading.Thread], where: str) -> None:
+    for thread in threads:
+        thread.join(THREAD_EXIT_GRACE_S / len(threads))
+    left = [f"{t.name} (running since {_STARTED_BY.get(t, 'a fixture')})" for t in threads if t.is_alive()]
+    if left:
+        pytest.fail(f"{where} left threads running: {', '.join(left)}; join every thread a test starts",
+                    pytrace=False)  # fmt: skip
+
+
+@pytest.fixture(autouse=True)
+def _note_threads_a_test_leaves(request):
+    """Remember which test started a thread that outlives it (a module fixture's pool may, until the module ends)."""
+    before = set(threading.enumerate())
+    yield
+    for thread in _running_threads(before):
+        _STARTED_BY.setdefault(thread, request.node.nodeid)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _no_thread_left_by_the_module(request):
+    """Fail a test module whose tests or fixtures leave a non-daemon thread running after its fixtures are gone."""
+    before = set(threading.enumerate())
+    yield
+    left = _running_threads(before)
+    if left:
+        _fail_if_left(left, request.module.__name__)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_thread_left_by_the_session():
+    """Fail the session when its fixtures leave non-daemon threads running at its end."""
+    yield
+    left = _running_threads({threading.main_thread()})
+    if left:
+        _fail_if_left(left, "the session's fixtures")
 
 
 @pytest.fixture(scope="session", autouse=True)

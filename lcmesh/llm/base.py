@@ -29,7 +29,7 @@ DEFAULT_MODEL = "smollm2-135m-instruct"
 
 @dataclass(frozen=True)
 class Generation:
-    """One completion: its text, token counts, wall time of the call that made it, why it ended."""
+    """One completion: its text, token counts, seconds of the call that made it (backend's clock), why it ended."""
 
     text: str
     prompt_tokens: int
@@ -66,7 +66,8 @@ class LlmBackend(Protocol):
         ``stop``: strings that end a completion (kept in the text). ``drafts``: an optional expected
         text per conversation that a backend may use to decode faster (speculation verified by the
         model, so the output is the model's own greedy text); backends may ignore it.
-        ``time_budget_s``: stop decoding after this long (``finish_reason = "timeout"``).
+        ``time_budget_s``: the whole call's budget, its first forward pass included; a backend that
+        cannot finish in time stops early or does not start (``finish_reason = "timeout"``, maybe no text).
         """
         ...
 

@@ -6,7 +6,9 @@ out of bounds, or all cabinets when the backend fails, take the fallback control
 that cabinet, and the reason is counted in ``stats``. The fallback (``"ppo"`` when a trained policy
 loads, else ``"g36"``) runs every step, so its state stays current; it also sets the cooling towers,
 which the LLM does not decide. With ``period_steps = k`` the LLM decides every k-th step and its
-CDU setpoints are held in between (fallback cabinets follow the fallback live).
+CDU setpoints are held in between (fallback cabinets follow the fallback live). The decision's time
+budget bounds the whole backend call, its first forward pass included (``lcmesh.llm.budget``): a
+batch that cannot finish in time is not started, and every cabinet falls back as ``timeout``.
 The action goes to the plant (or, in the mesh, to the Sensor agent's guardrails) like any other.
 """
 
@@ -21,6 +23,7 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from lcmesh.llm.base import LlmBackend, LlmBackendSettings, make_backend
+from lcmesh.llm.budget import Clock
 from lcmesh.llm.io_format import ANSWER_STOP, CabinetDecision, cabinet_views, controller_messages, parse_cabinet_answer
 from lcmesh.twin.controllers.base import Controller, Observation
 from lcmesh.twin.plant import PlantAction
@@ -67,15 +70,21 @@ class LlmController:
         fallback: str | Controller | None = None,
         period_steps: int | None = None,
         max_new_tokens: int | None = None,
+        decision_budget_s: float | None = None,
+        clock: Clock | None = None,
     ):
+        """``clock`` times the decisions; by default the backend's, so one injected clock drives both."""
         cfg = LlmControllerSettings()
         self.system = system
         self.period_steps = period_steps if period_steps is not None else cfg.control_period_steps
         if self.period_steps < 1:
             raise ValueError(f"`period_steps` must be >= 1, got {self.period_steps}")
         self.max_new_tokens = max_new_tokens if max_new_tokens is not None else cfg.max_new_tokens
-        self.decision_budget_s = cfg.decision_budget_s
+        self.decision_budget_s = decision_budget_s if decision_budget_s is not None else cfg.decision_budget_s
+        if self.decision_budget_s <= 0:
+            raise ValueError(f"`decision_budget_s` must be > 0, got {self.decision_budget_s}")
         self.backend = backend if backend is not None else make_backend(backend_settings)
+        self.clock = clock or getattr(self.backend, "clock", time.monotonic)
         fb = fallback if fallback is not None else cfg.fallback
         self.fallback = make_fallback(fb, system) if isinstance(fb, str) else fb
         self.version = f"{self.backend.model_id}|fallback={self.fallback.name}"
@@ -115,7 +124,7 @@ class LlmController:
         C, B = self.system.cabinets.count, self.system.cabinets.branches
         branch_power_w = np.asarray(obs.blade_power_w).reshape(C, B, -1).sum(axis=2)
         conversations = [controller_messages(v) for v in cabinet_views(obs.out, branch_power_w, obs.wet_bulb_k)]
-        t0 = time.perf_counter()
+        t0 = self.clock()
         try:
             generations = self.backend.chat(conversations, max_new_tokens=self.max_new_tokens, stop=[ANSWER_STOP],
                                             time_budget_s=self.decision_budget_s)  # fmt: skip
@@ -125,7 +134,7 @@ class LlmController:
         except Exception as exc:  # a dead endpoint must not stop control: every cabinet falls back
             log.warning("LLM backend failed (%s: %s); all cabinets fall back", type(exc).__name__, exc)
             answers = [("", f"{type(exc).__name__}: {exc}", 0)] * C
-        latency = time.perf_counter() - t0
+        latency = self.clock() - t0
         s = self.stats
         s["decisions"] += 1
         s["latency_s_last"] = latency

@@ -8,8 +8,9 @@ deterministic rendering, and the reason is counted. The distilled model was trai
 renderer's text, so the rendering is also passed as a draft: the backend verifies it in long runs
 instead of decoding token by token (the text stays the model's own greedy output). The LLM gets a
 time budget per level (2.85 s short, 9.7 s detailed: the rest of the 3 s / 10 s targets goes to the
-facts, the checks and the rendering, about 10 ms; the decoder does not start a pass it expects to
-end after the budget); an unfinished text counts as a ``timeout`` fallback.
+facts, the checks and the rendering, about 10 ms). The budget bounds the whole backend call: the
+decoder does not start a pass it expects to end after it, the first one included
+(``lcmesh.llm.budget``); an unfinished or unstarted text counts as a ``timeout`` fallback.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from string import Template
 import numpy as np
 
 from lcmesh.llm.base import LlmBackend
+from lcmesh.llm.budget import Clock
 from lcmesh.llm.io_format import load_template
 from lcmesh.mesh.tools.explain import explanation_record, render_explanation
 from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS, evaluate_record
@@ -79,8 +81,11 @@ class LlmExplainer:
         thresholds: ExplainThresholds = ExplainThresholds(),
         use_draft: bool = True,
         time_budget_s: dict[str, float] | None = None,
+        clock: Clock | None = None,
     ):
+        """``clock`` times the explanations; by default the backend's, so one injected clock drives both."""
         self.system, self.backend, self.thresholds, self.use_draft = system, backend, thresholds, use_draft
+        self.clock = clock or getattr(backend, "clock", time.monotonic)
         self.time_budget_s = {**TIME_BUDGET_S, **(time_budget_s or {})}
         self.stats: Counter = Counter()
 
@@ -99,7 +104,7 @@ class LlmExplainer:
             raise ValueError(f"`level` must be one of {', '.join(MAX_NEW_TOKENS)}, got {level!r}")
         facts = cabinet_decision_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet)
         rendered = render_explanation(facts, level)
-        t0 = time.perf_counter()
+        t0 = self.clock()
         try:
             gen = self.backend.chat([explain_messages(facts, level)], max_new_tokens=MAX_NEW_TOKENS[level],
                                     drafts=[rendered] if self.use_draft else None,
@@ -108,7 +113,7 @@ class LlmExplainer:
             error = gen.failure
         except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
             text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
-        seconds = time.perf_counter() - t0
+        seconds = self.clock() - t0
         record = explanation_record(out, action, facts, text, cabinet=cabinet, record_id=record_id,
                                     previous_action=previous_action, wet_bulb_k=wet_bulb_k, level=level)  # fmt: skip
         item = evaluate_record(record)

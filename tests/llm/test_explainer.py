@@ -11,6 +11,7 @@ from lcmesh.mesh.tools.explain import render_explanation
 from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS
 from lcmesh.mesh.tools.facts import cabinet_decision_facts
 from lcmesh.twin.controllers import Observation, make_controller
+from tests.llm.conftest import ForwardClock, frozen_clock
 
 
 class EchoBackend:
@@ -76,24 +77,41 @@ def test_unknown_level_is_refused(decision, lcopt5):
 
 
 def test_the_real_base_model_is_checked_like_any_other(decision, lcopt5, base_backend):
-    """Untrained, with a small budget, its text cannot cover every action dimension: the renderer stands in."""
+    """Untrained, with a small token budget, its text cannot cover every action dimension: the renderer stands in."""
     from lcmesh.llm import explainer as ex
 
     out, action, previous = decision
     budget = dict(ex.MAX_NEW_TOKENS)
     ex.MAX_NEW_TOKENS["short"] = 24
+    backend = base_backend.with_clock(frozen_clock)  # no time passes: the checks decide, not the machine's load
     try:
-        r = LlmExplainer(lcopt5, base_backend, use_draft=False).explain(out, action, previous, 291.15, 0, "short")
+        r = LlmExplainer(lcopt5, backend, use_draft=False).explain(out, action, previous, 291.15, 0, "short")
     finally:
         ex.MAX_NEW_TOKENS.update(budget)
-    assert r.source == "renderer" and r.fallback_reason is not None
+    assert r.source == "renderer" and r.fallback_reason not in (None, "timeout")
     assert 0 < r.new_tokens <= 24
 
 
-def test_an_llm_out_of_time_leaves_the_text_to_the_renderer(decision, lcopt5, base_backend):
+def test_a_budget_shorter_than_the_first_pass_leaves_the_text_to_the_renderer(decision, lcopt5, base_backend):
+    clock = ForwardClock(per_token_s=1e-3)
+    backend = base_backend.with_clock(clock, seconds_per_token=1e-3)  # prompt and draft: ~1,400 tokens, ~1.4 s
+    explainer = LlmExplainer(lcopt5, backend, time_budget_s={"short": 0.5})
     out, action, previous = decision
-    explainer = LlmExplainer(lcopt5, base_backend, time_budget_s={"short": 0.01})
-    r = explainer.explain(out, action, previous, 291.15, 4, "short")
+    with clock.driving(base_backend.model):
+        r = explainer.explain(out, action, previous, 291.15, 4, "short")
     assert r.source == "renderer" and r.fallback_reason == "timeout"
-    assert r.new_tokens <= 2 and r.seconds < 30
+    assert r.text == render_explanation(cabinet_decision_facts(lcopt5, out, action, previous, 291.15, 4))
+    assert clock.passes == 0 and r.new_tokens == 0 and r.seconds == 0.0  # not started: no pass, no time
     assert explainer.stats["fallback_timeout"] == 1
+
+
+def test_draft_verified_decoding_does_not_start_a_pass_that_would_end_late(decision, lcopt5, base_backend):
+    clock = ForwardClock(per_pass_s=0.2)
+    backend = base_backend.with_clock(clock, seconds_per_token=1e-5)
+    explainer = LlmExplainer(lcopt5, backend, time_budget_s={"short": 0.5})
+    out, action, previous = decision
+    with clock.driving(base_backend.model):
+        r = explainer.explain(out, action, previous, 291.15, 4, "short")
+    assert r.fallback_reason == "timeout" and r.new_tokens > 0
+    assert clock.passes == backend.last_forward_passes == 2  # a third pass would have ended at 0.6 s
+    assert r.seconds == clock.now <= 0.5

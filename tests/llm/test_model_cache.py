@@ -27,7 +27,7 @@ def test_second_resolve_reuses_the_cache(local_model_dir):
 
 def test_backend_loads_offline_and_generates(base_backend):
     assert os.environ.get("HF_HUB_OFFLINE") == "1"
-    assert base_backend.load_seconds < 30
+    assert base_backend.pass_cost.measured_at is not None  # a calibration pass at load gave the first estimate
     (gen,) = base_backend.chat([[{"role": "user", "content": "Name one color."}]], max_new_tokens=5)
     assert gen.text.strip()
     assert 1 <= gen.new_tokens <= 5

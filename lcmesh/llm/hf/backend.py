@@ -6,16 +6,22 @@ draft-verified: the model scores a run of draft tokens in one forward pass and k
 would have produced itself plus its own next token, then looks the last tokens up in the draft (and
 the prompt) again. The text is the model's greedy text; only the number of forward passes changes.
 A LoRA adapter is merged into the weights at load, so inference pays nothing for it.
+
+A time budget bounds the whole call (``lcmesh.llm.budget``): the first pass starts only if it is
+expected to end in time, and later passes or steps only if they are, all on the backend's
+``clock``. A calibration pass at load gives the first estimate.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from lcmesh.llm.base import Conversation, Generation, LlmBackendSettings
+from lcmesh.llm.budget import PROBE_TOKENS, Clock, PassCost
 from lcmesh.llm.model_cache import offline_env, quiet_libraries, resolve_model
 
 offline_env()
@@ -89,10 +95,13 @@ class HfBackend:
 
     name = "local"
 
-    def __init__(self, model_dir: Path, *, adapter: Path | None = None, dtype: str = "bfloat16", threads: int = 0):
+    def __init__(self, model_dir: Path, *, adapter: Path | None = None, dtype: str = "bfloat16", threads: int = 0,
+                 clock: Clock = time.monotonic, calibrate: bool = True):  # fmt: skip
+        """Load the model; ``clock`` keeps the time budgets, ``calibrate`` times a pass for the first estimate."""
         if threads > 0:
             torch.set_num_threads(threads)
-        t0 = time.perf_counter()
+        self.clock = clock
+        t0 = clock()
         self.model_dir, self.adapter = Path(model_dir), (Path(adapter) if adapter is not None else None)
         self.tokenizer = AutoTokenizer.from_pretrained(self.model_dir)
         self.tokenizer.padding_side = "left"
@@ -107,9 +116,13 @@ class HfBackend:
 
             model = PeftModel.from_pretrained(model, str(adapter)).merge_and_unload()
         self.model = model.to(DTYPES[dtype]).eval()
-        self.load_seconds = time.perf_counter() - t0
+        self.load_seconds = clock() - t0
         self.model_id = f"{_model_name(self.model_dir)}+{_adapter_name(self.adapter)}"
         self.last_forward_passes = 0
+        self.pass_cost = PassCost()
+        if calibrate:
+            self._forward(16)  # the first pass pays one-time allocations: keep them out of the estimate
+            self.calibrate()
 
     @classmethod
     def from_settings(cls, settings: LlmBackendSettings) -> "HfBackend":
@@ -117,6 +130,45 @@ class HfBackend:
             resolve_model(settings.model), adapter=resolve_adapter(settings.adapter), dtype=settings.dtype,
             threads=settings.threads,
         )  # fmt: skip
+
+    def with_clock(self, clock: Clock, *, seconds_per_token: float | None = None) -> "HfBackend":
+        """This backend (the same weights) on another clock, with its own estimate: the prior, or the one given."""
+        view = copy.copy(self)
+        view.clock, view.last_forward_passes = clock, 0
+        view.pass_cost = PassCost() if seconds_per_token is None else PassCost(seconds_per_token, measured_at=clock())
+        return view
+
+    def calibrate(self) -> float:
+        """Time one pass over ``PROBE_TOKENS`` tokens into the pass-cost estimate; its seconds."""
+        t0 = self.clock()
+        self._forward(PROBE_TOKENS)
+        seconds = self.clock() - t0
+        self.pass_cost.observe(PROBE_TOKENS, seconds, self.clock())
+        return seconds
+
+    @torch.inference_mode()
+    def _forward(self, n_tokens: int) -> None:
+        ids = (torch.arange(n_tokens, device=self.model.device) % self.model.config.vocab_size).unsqueeze(0)
+        self.model(input_ids=ids, logits_to_keep=1)
+
+    def _first_pass_fits(self, n_tokens: int, deadline: float | None) -> bool:
+        """Whether the first pass (``n_tokens`` over all rows) is expected to end by ``deadline``.
+
+        An estimate that refuses and is stale is re-measured first, if the calibration pass fits.
+        """
+        cost = self.pass_cost
+        if cost.fits(n_tokens, self.clock(), deadline):
+            return True
+        if cost.stale(self.clock()) and cost.fits(PROBE_TOKENS, self.clock(), deadline):
+            self.calibrate()
+            return cost.fits(n_tokens, self.clock(), deadline)
+        return False
+
+    def _out_of_time(self, prompts: list[list[int]], t0: float) -> list[Generation]:
+        """The answers of a call whose first pass would end after its deadline: no text, ``timeout``."""
+        self.last_forward_passes = 0
+        seconds = self.clock() - t0
+        return [Generation("", len(p), 0, seconds, "timeout") for p in prompts]
 
     def prompt_ids(self, conversation: Conversation) -> list[int]:
         """Token ids of the chat-formatted conversation, ready for the assistant's answer."""
@@ -135,29 +187,34 @@ class HfBackend:
     ) -> list[Generation]:
         if not conversations:
             return []
+        deadline = None if time_budget_s is None else self.clock() + time_budget_s  # one deadline for the call
         if drafts is not None and any(d for d in drafts):
-            return [self._one_with_draft(c, d, max_new_tokens, stop, time_budget_s)
+            return [self._one_with_draft(c, d, max_new_tokens, stop, deadline)
                     for c, d in zip(conversations, drafts)]  # fmt: skip
-        return self._batch(conversations, max_new_tokens, stop, time_budget_s)
+        return self._batch(conversations, max_new_tokens, stop, deadline)
 
     def _batch(self, conversations: Sequence[Conversation], max_new_tokens: int, stop: Sequence[str],
-               time_budget_s: float | None = None) -> list[Generation]:  # fmt: skip
-        t0 = time.perf_counter()
+               deadline: float | None) -> list[Generation]:  # fmt: skip
+        t0 = self.clock()
         ids = [self.prompt_ids(c) for c in conversations]
         batch = self.tokenizer.pad({"input_ids": ids}, padding=True, return_tensors="pt")
-        width = batch["input_ids"].shape[1]
-        criteria = StoppingCriteriaList([_StopStrings(self.tokenizer, stop, width)]) if stop else None
+        rows, width = batch["input_ids"].shape
+        if not self._first_pass_fits(rows * width, deadline):
+            return self._out_of_time(ids, t0)
+        timer = _Deadline(self.clock, deadline, first_step_s=self.pass_cost.expect(rows))
+        criteria = [timer] + ([_StopStrings(self.tokenizer, stop, width)] if stop else [])
         out = self.model.generate(
-            **batch, max_new_tokens=max_new_tokens, do_sample=False, stopping_criteria=criteria,
+            **batch, max_new_tokens=max_new_tokens, do_sample=False, stopping_criteria=StoppingCriteriaList(criteria),
             pad_token_id=self.tokenizer.pad_token_id, eos_token_id=self.tokenizer.eos_token_id,
-            temperature=None, top_p=None, top_k=None, max_time=time_budget_s,
+            temperature=None, top_p=None, top_k=None,
         )  # fmt: skip
-        seconds = time.perf_counter() - t0
+        seconds = self.clock() - t0
+        if timer.first_pass_s is not None:
+            self.pass_cost.observe(rows * width, timer.first_pass_s, self.clock())
         self.last_forward_passes = out.shape[1] - width
-        timed_out = time_budget_s is not None and seconds >= time_budget_s
         results = []
         for row, prompt in zip(out[:, width:].tolist(), ids):
-            results.append(self._finish(row, len(prompt), max_new_tokens, stop, seconds, timed_out))
+            results.append(self._finish(row, len(prompt), max_new_tokens, stop, seconds, timer.out_of_time))
         return results
 
     def _finish(self, row: list[int], n_prompt: int, max_new_tokens: int, stop: Sequence[str], seconds: float,
@@ -180,16 +237,19 @@ class HfBackend:
         return Generation(text, n_prompt, len(row), seconds, reason)
 
     def _one_with_draft(self, conversation: Conversation, draft: str | None, max_new_tokens: int, stop: Sequence[str],
-                        time_budget_s: float | None = None):  # fmt: skip
-        t0 = time.perf_counter()
+                        deadline: float | None) -> Generation:  # fmt: skip
+        t0 = self.clock()
         prompt = self.prompt_ids(conversation)
         draft_ids = self.tokenizer(draft, add_special_tokens=False)["input_ids"] if draft else []
-        deadline = None if time_budget_s is None else t0 + time_budget_s
-        new, passes, timed_out = draft_verified_greedy(self.model, prompt, draft_ids, max_new_tokens,
-                                                       self.tokenizer.eos_token_id, self._stop_check(stop),
-                                                       deadline)  # fmt: skip
-        self.last_forward_passes = passes
-        seconds = time.perf_counter() - t0
+        if not self._first_pass_fits(len(prompt) + len(_first_proposal(draft_ids, max_new_tokens)), deadline):
+            return self._out_of_time([prompt], t0)[0]
+        new, timings, timed_out = draft_verified_greedy(self.model, prompt, draft_ids, max_new_tokens,
+                                                        self.tokenizer.eos_token_id, self._stop_check(stop),
+                                                        deadline, self.clock)  # fmt: skip
+        if timings:
+            self.pass_cost.observe(*timings[0], self.clock())
+        self.last_forward_passes = len(timings)
+        seconds = self.clock() - t0
         return self._finish(new, len(prompt), max_new_tokens, stop, seconds, timed_out)
 
     def _stop_check(self, stop: Sequence[str]):
@@ -200,14 +260,15 @@ class HfBackend:
 
 def draft_verified_greedy(
     model, prompt: list[int], draft: list[int], max_new_tokens: int, eos: int, stopped=None,
-    deadline: float | None = None,
+    deadline: float | None = None, clock: Clock = time.monotonic,
 ):  # fmt: skip
     """Greedy decoding that verifies runs of ``draft`` (or prompt) tokens in one pass each.
 
     The first pass reads the prompt and the draft together, so a model that reproduces its draft
     needs one pass. Later runs double while the model agrees and shrink to twice the agreed length
-    after a miss. ``deadline`` (a ``time.perf_counter()`` value) ends decoding early: a pass expected
-    to end after it is not started. Returns (ids, forward passes, whether time ran out).
+    after a miss. ``deadline`` (a ``clock()`` value) ends decoding early: a later pass expected to end
+    after it is not started (whether the first pass fits is the caller's call: ``PassCost``).
+    Returns (ids, (tokens fed, seconds) of each forward pass, whether time ran out).
     """
     from transformers import DynamicCache
 
@@ -220,18 +281,18 @@ def draft_verified_greedy(
             break
         room = max_new_tokens - len(generated)
         if not generated:  # the first pass proposes the draft's opening
-            proposal = draft[: min(span, room - 1)]
+            proposal = _first_proposal(draft, max_new_tokens)
         else:
             proposal = _lookup(generated, sources, min(span, room - 1)) if room > 1 else []
         n = len(feed) + len(proposal)
-        t0 = time.perf_counter()
+        t0 = clock()
         if passes and deadline is not None and t0 + _pass_seconds(timings, n) > deadline:
             out_of_time = True  # this pass would end after the deadline: stop now, not late
             break
         logits = model(input_ids=torch.tensor([feed + proposal]), past_key_values=cache, use_cache=True,
                        logits_to_keep=len(proposal) + 1).logits  # the vocabulary head on the verified positions only
         predicted = logits[0].argmax(-1).tolist()
-        timings.append((n, time.perf_counter() - t0))
+        timings.append((n, clock() - t0))
         passes += 1
         accepted = 0
         while accepted < len(proposal) and proposal[accepted] == predicted[accepted]:
@@ -244,7 +305,12 @@ def draft_verified_greedy(
             span = min(LOOKUP_SPAN_MAX, 2 * span if full else max(LOOKUP_SPAN_MIN, 2 * accepted))
         if eos in generated:
             generated = generated[: generated.index(eos) + 1]
-    return generated[:max_new_tokens], passes, out_of_time
+    return generated[:max_new_tokens], timings, out_of_time
+
+
+def _first_proposal(draft: list[int], max_new_tokens: int) -> list[int]:
+    """The draft tokens the first pass reads with the prompt (one new token is the model's own)."""
+    return draft[: max(0, min(LOOKUP_SPAN_FIRST, max_new_tokens - 1))]
 
 
 def _pass_seconds(timings: list[tuple[int, float]], n: int) -> float:
@@ -269,6 +335,33 @@ def _lookup(generated: list[int], sources: Sequence[list[int]], span: int) -> li
                 if source[start : start + n] == tail and start + n < len(source):
                     return source[start + n : start + n + span]
     return []
+
+
+class _Deadline(StoppingCriteria):
+    """Ends ``generate`` when the next step is expected to end after ``deadline`` (checked between steps).
+
+    A step is expected to take as long as the slowest of the last few; the first decoding step, which
+    no step precedes, ``first_step_s``. The first call also times the prompt's pass (``first_pass_s``).
+    """
+
+    def __init__(self, clock: Clock, deadline: float | None, first_step_s: float):
+        self.clock, self.deadline, self.first_step_s = clock, deadline, first_step_s
+        self.started, self.last = clock(), None
+        self.first_pass_s: float | None = None
+        self.steps: list[float] = []
+        self.out_of_time = False
+
+    def __call__(self, input_ids: torch.Tensor, scores, **kwargs) -> torch.Tensor:
+        now = self.clock()
+        if self.last is None:
+            self.first_pass_s = now - self.started
+        else:
+            self.steps.append(now - self.last)
+        self.last = now
+        next_step_s = max(self.steps[-4:]) if self.steps else self.first_step_s
+        if self.deadline is not None and now + next_step_s > self.deadline:
+            self.out_of_time = True
+        return torch.full((input_ids.shape[0],), self.out_of_time, dtype=torch.bool, device=input_ids.device)
 
 
 class _StopStrings(StoppingCriteria):
