@@ -43,5 +43,5 @@ def test_render_names_every_figure_and_target():
 @pytest.mark.slow
 def test_a_short_real_latency_run():
     r = measure_latency("lcopt-5", "g36", 300.0, 30, free_port(), print)
-    assert r["steps"] == 30 and r["p50_ms"] is not None and 0 < r["p50_ms"] < 1000
+    assert r["steps"] == 30 and r["p50_ms"] is not None and r["p50_ms"] > 0  # its size is a benchmark figure
     assert r["controllers_used"] == ["g36"]
