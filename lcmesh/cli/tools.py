@@ -26,29 +26,40 @@ def bench_maintenance(
     seeds: Annotated[Optional[int], typer.Option(min=1, max=50, help="injections per day and fault kind")] = None,
     noise_scale: Annotated[float, typer.Option(min=0.0, max=10.0, help="x the default sensor noise (0: none)")] = 1.0,
     valve_exercise: Annotated[float, typer.Option(min=0.0, help="stroke each primary valve every N s (0: off)")] = 600.0,
+    mismatch: Annotated[bool, typer.Option(help="also run plants that differ from the detector's model")] = True,
+    nominal_detector: Annotated[bool, typer.Option(
+        help="also run the detector without baseline learning on the mismatched plants")] = False,
+    held_out: Annotated[bool, typer.Option(
+        help="days, injections and plants not used while tuning the detector (synthetic:1004-1007)")] = False,
 ) -> None:
-    """Detection rate, delay and false alarms of the fault detector on lcopt-5 under G36 (simulated days)."""
-    from lcmesh.bench.maintenance import render_maintenance, run_bench_maintenance
+    """Detection rate, delay and false alarms of the fault detector on lcopt-5 under G36 (simulated days),
+    on the detector's own model and on plants that differ from it."""
+    from lcmesh.bench.maintenance import SCENARIOS, render_maintenance, run_bench_maintenance
     from lcmesh.bench.report import update_benchmarks_md
 
     with progress_bar() as progress:
         task = progress.add_task("maintenance runs", total=None)
         result = run_bench_maintenance(
-            quick=quick, seeds=seeds, noise_scale=noise_scale, valve_exercise_s=valve_exercise,
+            quick=quick, seeds=seeds, noise_scale=noise_scale, valve_exercise_s=valve_exercise, mismatch=mismatch,
+            nominal_detector=nominal_detector, held_out=held_out,
             on_run=lambda n, total: progress.update(task, completed=n, total=total),
         )  # fmt: skip
     table = Table(title="fault detection (lcopt-5, G36)")
-    for column in ("fault", "detected", "median delay (min)", "rate once shown", "median once shown (min)"):
+    for column in ("fault", "plant", "detected", "median delay (min)", "rate once shown", "median once shown (min)"):
         table.add_column(column)
-    for kind, k in result["per_kind"].items():
-        med, shown = k["delay_from_injection"]["median_min"], k["detection_rate_manifested"]
-        med_shown = k["delay_from_manifestation"]["median_min"]
-        table.add_row(kind, f"{k['detected']}/{k['injected']}", _fmt(med, ".1f"), _fmt(shown, ".0%"),
-                      _fmt(med_shown, ".1f"))  # fmt: skip
+    scenarios = {"matched": result, **{name: result[name] for name in SCENARIOS if name in result}}
+    for kind in result["per_kind"]:
+        for name, scenario in scenarios.items():
+            k = scenario["per_kind"][kind]
+            med, shown = k["delay_from_injection"]["median_min"], k["detection_rate_manifested"]
+            med_shown = k["delay_from_manifestation"]["median_min"]
+            table.add_row(kind, name, f"{k['detected']}/{k['injected']}", _fmt(med, ".1f"), _fmt(shown, ".0%"),
+                          _fmt(med_shown, ".1f"))  # fmt: skip
     console.print(table)
-    fa = result["false_alarms"]
-    console.print(f"false alarms: {fa['count']} in {fa['fault_free_days']:.1f} fault-free days = "
-                  f"{fa['per_day']:.2f}/day")  # fmt: skip
+    for name, scenario in scenarios.items():
+        fa = scenario["false_alarms"]
+        console.print(f"false alarms ({name}): {fa['count']} in {fa['fault_free_days']:.1f} fault-free days = "
+                      f"{fa['per_day']:.2f}/day")  # fmt: skip
     write_json(json_out, result)
     if markdown is not None:
         update_benchmarks_md(markdown, "maintenance", result, render=render_maintenance)

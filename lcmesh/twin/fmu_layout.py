@@ -188,6 +188,12 @@ def build_layout(system: SystemDescription) -> Layout:
     inp("fault_sensor_bias_k", "IN_FAULT_SENSOR_BIAS", (C,), "K", "fault: supply temperature sensor bias", 0)
     inp("hru_enable", "IN_HRU_ENABLE", (), "1", "heat-recovery unit on when > 0.5",
         1.0 if system.heat_recovery else 0.0)
+    # the plant as built differs from its description (calibration, fouling): factors, 1 = as described
+    inp("deviation_hx_ua_factor", "IN_DEVIATION_HX_UA", (C,), "1", "plant deviation: CDU HX UA x this", 1)
+    inp("deviation_pump_head_factor", "IN_DEVIATION_PUMP_HEAD", (C,), "1",
+        "plant deviation: CDU pump curve head x this", 1)
+    inp("deviation_ct_approach_factor", "IN_DEVIATION_CT_APPROACH", (N,), "1",
+        "plant deviation: tower approach correlation x this", 1)
 
     out("blade_temp_k", "OUT_BLADE_TEMP", (nbg,), "K", "blade group temperature")
     out("branch_temp_k", "OUT_BRANCH_TEMP", (C, B), "K", "mean blade temperature of the branch")

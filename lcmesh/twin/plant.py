@@ -18,6 +18,7 @@ from lcmesh.twin.system import SystemDescription
 
 ACTION_BLOCKS = ("supply_temp_setpoint_k", "dp_setpoint_pa", "valve_fraction", "lw_setpoint_k")
 FAULT_BLOCKS = ("fault_pump_degradation", "fault_valve_stuck", "fault_cell_out", "fault_sensor_bias_k")
+DEVIATION_BLOCKS = ("deviation_hx_ua_factor", "deviation_pump_head_factor", "deviation_ct_approach_factor")
 OUTPUT_BLOCKS = (
     "blade_temp_k", "branch_temp_k", "branch_max_temp_k", "branch_power_w", "branch_flow_kg_s",
     "applied_valve_fraction", "supply_temp_k", "supply_temp_measured_k", "return_temp_k",
@@ -62,6 +63,15 @@ class Faults:
     active: bool = field(default=False)
 
 
+@dataclass
+class Deviations:
+    """How the plant differs from its description (all 1 by default): factors on the described parameters."""
+
+    hx_ua_factor: np.ndarray  # (C,) CDU heat exchanger UA (calibration, fouling)
+    pump_head_factor: np.ndarray  # (C,) CDU pump curve head, both terms of a s^2 - b q^2
+    ct_approach_factor: np.ndarray  # (N,) the tower approach correlation
+
+
 class Plant:
     """A running twin of `system`."""
 
@@ -86,6 +96,8 @@ class Plant:
         self._inputs = self.runner.channel("blade_power_w", "wet_bulb_k", *ACTION_BLOCKS)
         self.inp = _views(self._inputs.values, ("blade_power_w", "wet_bulb_k", *ACTION_BLOCKS), self.shapes)
         self._faults = self.runner.channel(*FAULT_BLOCKS) if all(map(self.runner.has, FAULT_BLOCKS)) else None
+        has_deviations = all(map(self.runner.has, DEVIATION_BLOCKS))
+        self._deviations = self.runner.channel(*DEVIATION_BLOCKS) if has_deviations else None
         present = [b for b in OUTPUT_BLOCKS if self.runner.has(b)]
         missing = [b for b in REQUIRED_OUTPUTS if b not in present]
         if missing:
@@ -93,6 +105,7 @@ class Plant:
         self._outputs = self.runner.channel(*present)
         self.out = _views(self._outputs.values, present, self.shapes)
         self.faults = Faults(np.zeros(C), np.zeros(C), np.zeros((N, m)), np.zeros(C))
+        self.deviations = Deviations(np.ones(C), np.ones(C), np.ones(N))
         self.step_s = system.step_s
         self._initial: FmuState | None = None
         self.runner.initialize()
@@ -139,6 +152,23 @@ class Plant:
         self._faults.write()
         f.active = bool(self._faults.values.any())
 
+    def set_deviations(self, **changes: np.ndarray | float) -> None:
+        """Change how the plant differs from its description, e.g. ``set_deviations(hx_ua_factor=0.85)``.
+
+        Factors on the described parameters (1 = as described, clamped to [0.1, 10] in the model). Like the
+        fault inputs they travel with the FMU state: ``restore_state`` brings back the ones saved with it.
+        """
+        if self._deviations is None:
+            raise ValueError("this FMU has no deviation inputs")
+        for name, value in changes.items():
+            target = getattr(self.deviations, name)  # AttributeError names a bad field
+            target[...] = value
+        d = self.deviations
+        self._deviations.values[:] = np.concatenate(
+            [d.hx_ua_factor.ravel(), d.pump_head_factor.ravel(), d.ct_approach_factor.ravel()]
+        )
+        self._deviations.write()
+
     # --- state -----------------------------------------------------------
     def spin_up(self, blade_power_w: np.ndarray, wet_bulb_k: float, action: PlantAction, hours: float = 1.0) -> None:
         """Run at constant inputs past the start-up transient, and make that the reset state."""
@@ -156,6 +186,7 @@ class Plant:
         else:
             self.runner.reset()
         self._outputs.read()
+        self._read_inputs()
         self.n_steps_done = 0
         return self.out
 
@@ -165,6 +196,19 @@ class Plant:
     def restore_state(self, state: FmuState) -> None:
         self.runner.restore_state(state)
         self._outputs.read()
+        self._read_inputs()
+
+    def _read_inputs(self) -> None:
+        """Faults and deviations are FMU state: after a restore, ``faults`` and ``deviations`` show the FMU's."""
+        for channel, mirror in ((self._faults, self.faults), (self._deviations, self.deviations)):
+            if channel is None:
+                continue
+            values, offset = channel.read(), 0
+            for name, array in vars(mirror).items():
+                if isinstance(array, np.ndarray):
+                    array[...] = values[offset : offset + array.size].reshape(array.shape)
+                    offset += array.size
+        self.faults.active = bool(self._faults is not None and self._faults.values.any())
 
     def free_state(self, state: FmuState) -> None:
         self.runner.free_state(state)

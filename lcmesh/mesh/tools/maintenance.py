@@ -13,6 +13,12 @@ Each check compares what the plant reports with what the twin's own equations ex
 - overtemperature and trend: the hottest branch above the limit, or a rising trend (slope CI above zero)
   that reaches it within the horizon; pump head-loss trends predict when the dp setpoint is lost.
 
+The model is not the plant (its parameters are the description's, not the plant's): the two model residuals
+(pump, sensor bias) are checked against their healthy values learned over a commissioning window after a
+start (`baseline_learn_s`), which then follow slow drift (fouling, sensor drift) while nothing shifts; the
+model's own zero is checked only with an allowance for how far a plant may be off its description. The
+detector never reads the plant's true parameters, only its outputs.
+
 A finding is raised after `persistence_steps` consecutive steps of evidence and stays active until its
 clear condition holds for `clear_steps` steps. Locations are zero-based: ``cabinet_3``, ``tower_1/cell_0``.
 """
@@ -20,7 +26,7 @@ clear condition holds for `clear_steps` steps. Locations are zero-based: ``cabin
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -66,12 +72,22 @@ class DetectorConfig(BaseModel):
     max_gap_s: float = Field(120.0, gt=0, description="a longer gap between updates restarts the dynamic checks")
     noise_k_sigma: float = Field(1.0, ge=0, description="CUSUM allowances are at least this x the residual noise")
     noise_h_sigma: float = Field(8.0, ge=0, description="CUSUM thresholds are at least this x the residual noise")
+    baseline_learn_s: float = Field(3600.0, ge=0, description="commissioning: learn each residual's healthy mean "
+                                    "over this much operation after a start (0: the model's own zero)")
+    baseline_tau_s: float = Field(3 * 3600.0, ge=0, description="then follow slow drift (fouling, sensor drift) with "
+                                  "this time constant while no shift builds up (0: hold)")
+    pump_model_tolerance: float = Field(0.25, ge=0, description="head-loss allowance vs the described curve itself "
+                                        "(a pump curve 20 % off its description), checked from the first step")
+    bias_model_tolerance_k: float = Field(1.2, ge=0, description="the same for the supply-sensor residual, K "
+                                          "(sensor offsets and drift)")
     pump_cusum_k: float = Field(0.04, ge=0, description="allowance on the head-loss fraction")
     pump_cusum_h: float = Field(0.25, gt=0, description="CUSUM threshold (head-loss fraction x steps)")
     pump_clear_head_loss: float = Field(0.03, ge=0, description="smoothed head loss below which it clears")
     bias_cusum_k: float = Field(0.2, ge=0, description="allowance on the supply-sensor residual, K")
     bias_cusum_h: float = Field(1.5, gt=0, description="CUSUM threshold, K x steps")
     bias_clear_k: float = Field(0.15, ge=0, description="smoothed residual below which it clears, K")
+    bias_max_return_rate_k_per_min: float = Field(4.0, gt=0, description="a faster-changing return temperature "
+                                                  "skips the step (the balance assumes a steady change)")
     valve_error_margin_k: float = Field(0.15, ge=0, description="error beyond the PID deadband that must move it")
     valve_margin_sigma: float = Field(3.0, ge=0, description="that margin is at least this x the error's noise")
     valve_move_min: float = Field(0.015, gt=0, description="valve travel per step that counts as moving")
@@ -128,6 +144,88 @@ class _Ring:
         return self.t[keep][order], self.y[keep][order]
 
 
+class _Baseline:
+    """A residual's healthy mean per location: learned during commissioning, then following slow drift.
+
+    Commissioning: the plain mean of the samples fit to learn from, until ``learn_s`` of them have been
+    seen (``ready``). After it, an EWMA with time constant ``tau_s`` while the caller calls the location
+    quiet (its CUSUM in control, no active finding), so fouling and sensor drift are followed while a
+    fault, which drives the CUSUM up within a few steps, freezes it. ``learn_s = 0``: ready at once, from
+    0 (the model's own zero).
+    """
+
+    def __init__(self, n: int, learn_s: float, tau_s: float):
+        self.learn_s, self.tau_s = learn_s, tau_s
+        self.value = np.zeros(n)
+        self.seen_s = np.zeros(n)
+        self._sum = np.zeros(n)
+        self._count = np.zeros(n)
+
+    @property
+    def ready(self) -> np.ndarray:
+        return self.seen_s >= self.learn_s
+
+    def update(self, residual: np.ndarray, dt_s: float, learn: np.ndarray, quiet: np.ndarray) -> None:
+        commissioning = ~self.ready
+        take = commissioning & learn
+        self._sum += np.where(take, residual, 0.0)
+        self._count += take
+        self.seen_s += np.where(take, dt_s, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(self._count > 0, self._sum / np.maximum(self._count, 1), 0.0)
+        follow = ~commissioning & quiet & (self.tau_s > 0)
+        alpha = 1.0 - np.exp(-dt_s / self.tau_s) if self.tau_s > 0 else 0.0
+        self.value = np.where(commissioning, mean, np.where(follow, self.value + alpha * (residual - self.value),
+                                                             self.value))  # fmt: skip
+
+
+class _Checked(NamedTuple):
+    alarm: np.ndarray  # evidence this step
+    size: np.ndarray  # the fault's size: since commissioning once learned, else against the model
+    smooth: np.ndarray  # EWMA of the residual against the model
+    baseline: np.ndarray  # the learned healthy residual (0 until learned)
+    learned: np.ndarray  # commissioning is over
+
+
+class _ResidualCheck:
+    """One model residual per location, zero for a healthy plant that is its model, checked twice.
+
+    Against the model's own zero with the allowance `model_tolerance` (how far a plant may be off its
+    description), from the first step: gross faults, also during commissioning. Against the healthy
+    baseline learned at commissioning (:class:`_Baseline`) with the tight allowance `k`, once learned.
+    Both are CUSUMs with threshold `h`, allowances and threshold scaled up with the residual's noise.
+    """
+
+    def __init__(self, n: int, cfg: DetectorConfig, k: float, h: float, model_tolerance: float, smoothing: float,
+                 upward_only: bool):  # fmt: skip
+        self.cfg, self.k, self.h, self.model_tolerance, self.upward_only = cfg, k, h, model_tolerance, upward_only
+        self.cusum = stats.Cusum(k, h, (n,))
+        self.model_cusum = stats.Cusum(model_tolerance, h, (n,))
+        self.baseline = _Baseline(n, cfg.baseline_learn_s, cfg.baseline_tau_s)
+        self.noise = stats.MovingRangeSigma(0.02)  # so noisier sensors need larger faults, not raise alarms
+        self.ewma = stats.Ewma(smoothing)
+
+    def update(self, residual: np.ndarray, valid: np.ndarray, dt_s: float, active: np.ndarray) -> _Checked:
+        """One step; `active`: the locations with an active finding (their baseline holds)."""
+        noise = self.noise.update(np.where(valid, residual, np.nan))
+        residual = np.where(valid, residual, 0.0)
+        _scale(self.model_cusum, self.model_tolerance, self.h, noise, self.cfg)
+        _scale(self.cusum, self.k, self.h, noise, self.cfg)
+        ready = self.baseline.ready
+        model_alarm = _masked_cusum(self.model_cusum, residual, valid)
+        alarm = _masked_cusum(self.cusum, residual - self.baseline.value, valid & ready)
+        if self.upward_only:
+            model_alarm &= self.model_cusum.pos > self.model_cusum.neg
+            alarm &= self.cusum.pos > self.cusum.neg
+        model_quiet = (self.model_cusum.pos == 0) & (self.model_cusum.neg == 0)
+        self.baseline.update(residual, dt_s, valid & model_quiet, valid & _in_control(self.cusum) & ~active)
+        previous = self.ewma.value if self.ewma.value is not None else residual
+        smooth = self.ewma.update(np.where(valid, residual, previous))
+        baseline = np.where(ready, self.baseline.value, 0.0)
+        size = np.where(ready, _estimate(self.cusum, smooth - baseline), _estimate(self.model_cusum, smooth))
+        return _Checked(alarm | model_alarm, size, smooth, baseline, ready.astype(float))
+
+
 class FaultDetector:
     """Watches plant outputs step by step and keeps the set of active findings (see the module docstring)."""
 
@@ -158,13 +256,11 @@ class FaultDetector:
                  "overtemperature": cfg.condition_clear_steps, "trend": cfg.condition_clear_steps}  # fmt: skip
         self._clear_steps = np.array([clear.get(k, cfg.clear_steps) for k in self._slot_kind])
         self._latch = _Latch(len(self._slot_kind))
-        self._pump_cusum = stats.Cusum(cfg.pump_cusum_k, cfg.pump_cusum_h, (C,))
-        self._pump_ewma = stats.Ewma(0.2)
-        self._bias_cusum = stats.Cusum(cfg.bias_cusum_k, cfg.bias_cusum_h, (C,))
-        self._bias_ewma = stats.Ewma(0.1)
-        # residual noise levels (moving range): thresholds scale with them, so noisier sensors do not alarm
-        self._pump_noise, self._bias_noise = stats.MovingRangeSigma(0.02), stats.MovingRangeSigma(0.02)
-        self._supply_noise = stats.MovingRangeSigma(0.02)
+        self._pump = _ResidualCheck(C, cfg, cfg.pump_cusum_k, cfg.pump_cusum_h, cfg.pump_model_tolerance,
+                                    smoothing=0.2, upward_only=True)  # fmt: skip
+        self._bias = _ResidualCheck(C, cfg, cfg.bias_cusum_k, cfg.bias_cusum_h, cfg.bias_model_tolerance_k,
+                                    smoothing=0.1, upward_only=False)  # fmt: skip
+        self._supply_noise = stats.MovingRangeSigma(0.02)  # of the measured supply: the stuck-valve margin
         self._valve_owed = np.zeros(C)
         self._valve_still = np.zeros(C, dtype=int)
         self._cell_suspect = np.zeros((N, m), dtype=bool)
@@ -216,7 +312,7 @@ class FaultDetector:
         self._last_time_s = time_s
         cfg = self.config
         checks = {
-            "pump_degradation": self._check_pump(x),
+            "pump_degradation": self._check_pump(x, dt_s),
             "sensor_bias": self._check_bias(x, dt_s),
             "valve_stuck": self._check_valve(x, dt_s),
             "cell_out": self._check_cells(x, dt_s, wet_bulb_k),
@@ -231,6 +327,11 @@ class FaultDetector:
         self.findings = [self._finding(int(slot), time_s) for slot in np.flatnonzero(self._latch.active)]
         self.last_raised = [f for f, slot in zip(self.findings, np.flatnonzero(self._latch.active)) if raised[slot]]
         return self.findings
+
+    def _active(self, kind: str) -> np.ndarray:
+        """Which locations of `kind` have an active finding (as of the previous step)."""
+        start = self._slot_start[kind]
+        return self._latch.active[start : start + (self.N * self.m if kind == "cell_out" else self.C)]
 
     def _read(self, out: Mapping[str, np.ndarray], action: PlantAction | None) -> dict[str, np.ndarray]:
         x = {}
@@ -248,22 +349,21 @@ class FaultDetector:
         return x
 
     # --- checks: each returns (evidence, clear) masks over its locations ----------------------
-    def _check_pump(self, x):
+    def _check_pump(self, x, dt_s):
         cfg, ev = self.config, self._ev["pump_degradation"]
         speed, flow = x["pump_speed"], x["secondary_flow_kg_s"]
-        loss = self.pump.head_loss(speed, flow)
+        loss = self.pump.head_loss(speed, flow)  # of the described curve's head
         valid = np.isfinite(loss) & (speed > 0.05)
-        noise = self._pump_noise.update(np.where(valid, loss, np.nan))
-        _scale(self._pump_cusum, cfg.pump_cusum_k, cfg.pump_cusum_h, noise, cfg)
-        loss = np.where(valid, loss, 0.0)
-        evidence = _masked_cusum(self._pump_cusum, loss, valid) & (self._pump_cusum.pos > self._pump_cusum.neg)
-        previous = self._pump_ewma.value if self._pump_ewma.value is not None else loss
-        smooth = self._pump_ewma.update(np.where(valid, loss, previous))
-        self._pump_smooth = smooth
-        limit = self.pump.head_loss_limit(x["applied_dp_setpoint_pa"])
-        ev.update(head_loss=_estimate(self._pump_cusum, smooth), head_loss_limit=limit, pump_speed=speed,
-                  flow_kg_s=flow, expected_flow_kg_s=self.pump.flow_kg_s(speed))  # fmt: skip
-        return evidence, smooth < cfg.pump_clear_head_loss
+        r = self._pump.update(loss, valid, dt_s or self.system.step_s, self._active("pump_degradation"))
+        self._pump_smooth = r.smooth
+        # the curve as commissioned: head x (1 - baseline), as the speed x sqrt(1 - baseline) gives
+        commissioned_speed = speed * np.sqrt(np.maximum(1.0 - r.baseline, 0.0))
+        ev.update(
+            head_loss=r.size, head_loss_vs_curve=r.baseline + r.size, head_loss_baseline=r.baseline,
+            baseline_learned=r.learned, head_loss_limit=self.pump.head_loss_limit(x["applied_dp_setpoint_pa"]),
+            pump_speed=speed, flow_kg_s=flow, expected_flow_kg_s=self.pump.flow_kg_s(commissioned_speed),
+        )  # fmt: skip
+        return r.alarm, r.smooth - r.baseline < cfg.pump_clear_head_loss
 
     def _check_bias(self, x, dt_s):
         cfg, prev = self.config, self._prev
@@ -277,17 +377,16 @@ class FaultDetector:
             hx_out = t_return - x["cdu_heat_w"] / (flow * thermo.CP_WATER_J_KG_K)
             # supply volume energy balance over the step: M dT/dt = m (T_hx_out - T_true), T_meas = T_true + bias
             residual = 0.5 * (t_meas + t_prev) - hx_out + mass_kg * (t_meas - t_prev) / (dt_s * flow)
-        valid = np.isfinite(residual) & (flow > 0.5)
+        # the trapezoid over the step is exact for a steady change; a load burst heats the return faster than that
+        steady = np.abs(x["return_temp_k"] - prev["return_temp_k"]) <= cfg.bias_max_return_rate_k_per_min * dt_s / 60
+        valid = np.isfinite(residual) & (flow > 0.5) & steady
         residual = np.clip(np.where(valid, residual, 0.0), -10.0, 10.0)
-        noise = self._bias_noise.update(np.where(valid, residual, np.nan))
-        _scale(self._bias_cusum, cfg.bias_cusum_k, cfg.bias_cusum_h, noise, cfg)
-        alarm = _masked_cusum(self._bias_cusum, residual, valid)
-        previous = self._bias_ewma.value if self._bias_ewma.value is not None else residual
-        smooth = self._bias_ewma.update(np.where(valid, residual, previous))
-        bias = _estimate(self._bias_cusum, smooth)
-        self._ev["sensor_bias"].update(bias_estimate_k=bias, measured_supply_k=t_meas, implied_supply_k=t_meas - bias,
-                                       setpoint_k=x["applied_supply_setpoint_k"])  # fmt: skip
-        return alarm, np.abs(smooth) < cfg.bias_clear_k
+        r = self._bias.update(residual, valid, dt_s, self._active("sensor_bias"))
+        self._ev["sensor_bias"].update(
+            bias_estimate_k=r.size, residual_baseline_k=r.baseline, baseline_learned=r.learned,
+            measured_supply_k=t_meas, implied_supply_k=t_meas - r.size, setpoint_k=x["applied_supply_setpoint_k"],
+        )  # fmt: skip
+        return r.alarm, np.abs(r.smooth - r.baseline) < cfg.bias_clear_k
 
     def _check_valve(self, x, dt_s):
         cfg, cdu, prev = self.config, self.system.cabinets.cdu, self._prev
@@ -421,6 +520,12 @@ def _masked_cusum(cusum: stats.Cusum, x: np.ndarray, valid: np.ndarray) -> np.nd
     for name, old in zip(names, before):
         setattr(cusum, name, np.where(valid, getattr(cusum, name), old))
     return alarm & valid
+
+
+def _in_control(cusum: stats.Cusum) -> np.ndarray:
+    """No shift building up: both CUSUM statistics below half the threshold. A baseline follows every sample
+    while this holds (not only the samples near it, which would bias it against a drift)."""
+    return np.maximum(cusum.pos, cusum.neg) < 0.5 * cusum.h
 
 
 def _scale(cusum: stats.Cusum, k: float, h: float, noise: np.ndarray, cfg: DetectorConfig) -> None:

@@ -24,8 +24,9 @@ def _c(t_k: float) -> str:
 
 def _pump_text(det: FaultDetector, i: int, d: dict):
     loss, limit = d["head_loss"], d["head_loss_limit"]
-    critical = loss >= limit
-    msg = (f"CDU pump of cabinet {i} gives {loss:.0%} less head than its curve at {d['pump_speed']:.0%} speed: "
+    critical = d.get("head_loss_vs_curve", loss) >= limit  # the limit is on the head the curve should give
+    reference = "as commissioned" if d.get("baseline_learned") else "its curve"
+    msg = (f"CDU pump of cabinet {i} gives {loss:.0%} less head than {reference} at {d['pump_speed']:.0%} speed: "
            f"{d['flow_kg_s']:.1f} kg/s where a healthy pump gives {d['expected_flow_kg_s']:.1f} kg/s.")  # fmt: skip
     eta = d["time_to_limit_s"]
     if critical:

@@ -21,6 +21,13 @@
 
 static double clampd(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
 
+/* A plant-deviation input (the plant differs from its description: calibration, fouling): a factor,
+ * 1 when non-finite, clamped to [0.1, 10]. */
+static double deviation(const Model *m, int vr) {
+    double f = m->r[vr];
+    return isfinite(f) ? clampd(f, 0.1, 10.0) : 1.0;
+}
+
 /* PID with derivative on the measurement (implicitly filtered) and conditional
  * integration (no wind-up while the output is saturated in the error's direction).
  * err = direction * (setpoint - measurement); returns the unclamped output. */
@@ -60,21 +67,22 @@ static double hx_heat(double ua, double m_hot, double t_hot_in, double m_cold, d
 
 /* CDU heat exchanger UA from the two volume flows: each side's film conductance
  * grows as flow^0.8 up to the saturation flow; the sides act in series. */
-static double cdu_hx_ua(const Model *m, double m_primary, double m_secondary) {
+static double cdu_hx_ua(const Model *m, int i, double m_primary, double m_secondary) {
     double hp = 2.0 * P_HX_UA_SAT * pow(fmin(m_primary / RHO_WATER / P_HX_FLOW_SAT, 1.0), 0.8);
     double hs = 2.0 * P_HX_UA_SAT * pow(fmin(m_secondary / RHO_WATER / P_HX_FLOW_SAT, 1.0), 0.8);
     if (hp <= 0.0 || hs <= 0.0) return 0.0;
-    return P_HX_UA_CORRECTION / (1.0 / hp + 1.0 / hs);
+    return deviation(m, OFF_IN_DEVIATION_HX_UA + i) * P_HX_UA_CORRECTION / (1.0 / hp + 1.0 / hs);
 }
 
-/* Secondary flow (kg/s) where the parallel pumps' curve head = a*s^2 - b*q^2 meets
- * the loop's linear resistance dp = R*m. */
+/* Secondary flow (kg/s) where the parallel pumps' curve head = f (a*s^2 - b*q^2) meets
+ * the loop's linear resistance dp = R*m (f: the head-curve deviation input, 1 as described). */
 static double secondary_flow(const Model *m, int i, double speed) {
     double degradation = clampd(IN(IN_FAULT_PUMP_DEGRADATION, i), 0.0, 0.95);
+    double head = deviation(m, OFF_IN_DEVIATION_PUMP_HEAD + i);
     double n = P_CDU_PUMP_N;
-    double c = RHO_WATER * GRAVITY * speed * speed * P_CDU_PUMP_A * (1.0 - degradation);
+    double c = head * RHO_WATER * GRAVITY * speed * speed * P_CDU_PUMP_A * (1.0 - degradation);
     if (c <= 0.0) return 0.0;
-    double k = GRAVITY * P_CDU_PUMP_B / (RHO_WATER * n * n);
+    double k = head * GRAVITY * P_CDU_PUMP_B / (RHO_WATER * n * n);
     double r = P_R_HX_SECONDARY + P_R_CABINET;
     return 2.0 * c / (r + sqrt(r * r + 4.0 * k * c));
 }
@@ -85,10 +93,11 @@ static double secondary_flow(const Model *m, int i, double speed) {
  * T_app = alpha + beta adj. We take adj = Q_cell / (Q_design * air ratio), the cell's heat per
  * unit air relative to design; with Q_cell = m c_p (T_in - T_lw) the leaving temperature then
  * has a closed form (no algebraic loop to iterate). */
-static double tower_leaving_temp(const Model *m, double t_wet_bulb, double t_in, double air_ratio) {
+static double tower_leaving_temp(const Model *m, int n, double t_wet_bulb, double t_in, double air_ratio) {
     double twb_f = fmin((t_wet_bulb - 273.15) * 1.8 + 32.0, P_CT_WB_MAX_F);
-    double alpha = 5.0 / 9.0 * (8.8 - 0.0891 * twb_f);
-    double beta = 5.0 / 9.0 * (10.2 - 0.1139 * twb_f);
+    double fit = deviation(m, OFF_IN_DEVIATION_CT_APPROACH + n); /* the plant's cells vs the fit */
+    double alpha = fit * 5.0 / 9.0 * (8.8 - 0.0891 * twb_f);
+    double beta = fit * 5.0 / 9.0 * (10.2 - 0.1139 * twb_f);
     double gamma = P_CT_CELL_FLOW * CP_WATER / (P_CT_DESIGN_HEAT * air_ratio);
     double t_lw = (t_wet_bulb + alpha + beta * gamma * t_in) / (1.0 + beta * gamma);
     t_lw = fmax(t_lw, t_wet_bulb + P_CT_APPROACH_MIN);
@@ -303,7 +312,7 @@ int model_do_step(Model *m, double h) {
         for (int i = 0; i < NCAB; i++) {
             double ms = secondary_flow(m, i, m->pump_speed[i]);
             double mp = m->valve_pos[i] * P_PRIMARY_FLOW_MAX;
-            double ua = cdu_hx_ua(m, mp, ms);
+            double ua = cdu_hx_ua(m, i, mp, ms);
             double q = hx_heat(ua, ms, m->t_return[i], mp, m->t_htw_supply);
             double t_sec_out = ms > 0.0 ? m->t_return[i] - q / (ms * CP_WATER) : m->t_return[i];
             t_primary_out[i] = mp > 0.0 ? m->t_htw_supply + q / (mp * CP_WATER) : m->t_htw_supply;
@@ -343,7 +352,7 @@ int model_do_step(Model *m, double h) {
             double t_ct_in = m_ct > 0.0 ? m->t_basin[n] + q_ehx / (m_ct * CP_WATER) : m->t_basin[n];
             /* every active cell runs at the tower's fan speed and sees the same inlet */
             double air = fmax(m->fan_speed[n], P_CT_FREE_CONVECTION);
-            double t_lw = tower_leaving_temp(m, t_wb, t_ct_in, air);
+            double t_lw = tower_leaving_temp(m, n, t_wb, t_ct_in, air);
             double q_cell = P_CT_CELL_FLOW * CP_WATER * (t_ct_in - t_lw);
             m->leaving_temp[n] = on > 0 ? t_lw : t_ct_in;
             int placed = 0;

@@ -235,7 +235,7 @@ def test_benchmark_harness_counts_detection_and_manifestation(lcopt5):
               "simulated_days": 0.2, "wall_s": 1.0, "targets": {"detection_rate": 0.9, "median_delay_min": 10,
                                                                  "false_alarms_per_day": 1}}  # fmt: skip
     table = render_maintenance(result)
-    assert "| pump_degradation | 1/1 | 100% |" in table and "0.00 per day" in table
+    assert "| pump_degradation | matched | 1/1 | 100% |" in table and "0.00 per day" in table
 
 
 @pytest.mark.slow
@@ -252,4 +252,6 @@ def test_bench_maintenance_cli_quick(tmp_path):
     assert set(data["per_kind"]) == set(FAULT_KINDS)
     assert data["false_alarms"]["per_day"] <= 1.0
     assert data["per_kind"]["pump_degradation"]["detection_rate"] == 1.0
-    assert "<!-- bench:maintenance:start -->" in md.read_text()
+    assert set(data["mismatched"]["per_kind"]) == set(FAULT_KINDS)  # the same injections on mismatched plants
+    assert data["mismatched"]["false_alarms"]["per_day"] <= 1.0
+    assert "| pump_degradation | mismatched |" in md.read_text()
