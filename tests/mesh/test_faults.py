@@ -176,7 +176,7 @@ def test_garbage_on_every_key_is_dropped_and_counted(mesh):
     junk = [b"", b"\x00\xff", b"{", b"[]", b'{"schema_version": 1}', b'{"source": "x", "step": -1}']
     buggy = {role: Bus.connect(s, f"{role}-buggy", role=role) for role in {role for _, role in subscribed}}
     try:
-        time.sleep(0.5)  # the router has the new sessions' interests
+        time.sleep(1.5)  # the router has the new sessions' interests
         for key, role in subscribed:
             for payload in junk:
                 buggy[role].publish_raw(key, payload, block=True)
