@@ -115,7 +115,7 @@ def _kept_or_generated(path: Path) -> ApiToken:
             if stat.S_IMODE(path.stat().st_mode) & 0o077:
                 os.chmod(path, 0o600)  # it is a secret: the owner's alone
             return ApiToken(value, "file", path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)  # a folder made here holds only secrets
         value = secrets.token_urlsafe(32)
         flags = os.O_WRONLY | os.O_CREAT | (os.O_TRUNC if path.exists() else os.O_EXCL)  # an empty file is replaced
         try:
