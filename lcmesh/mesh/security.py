@@ -62,7 +62,7 @@ def grants(role: str) -> dict[str, tuple[str, ...]]:
         "configuration": {"config/*": (PUT, *SERVE), "configure/*/*": SERVE},
         "orchestration": {f"cmd/{_role_id('orchestration')}/*": SERVE, "cmd/*/*": (QUERY,)},
         "ui": {"configure/ui/*": (QUERY,), "cmd/*/*": (QUERY,), "tools/*": (QUERY,)},
-        "operator": {"configure/operator/*": (QUERY,), "cmd/*/*": (QUERY,), "tools/*": (QUERY,)},
+        "operator": {"configure/operator/*": (QUERY,), "tools/*": (QUERY,)},  # cmd/*: only orchestration and UI
     }
     if role not in extra:
         raise ValueError(f"unknown bus role {role!r}; the roles are {', '.join(ROLES)}")

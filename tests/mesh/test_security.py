@@ -49,7 +49,7 @@ def test_the_acl_grants_each_role_only_its_writes():
     assert [r for r, ks in puts.items() if "config/*" in ks] == ["configuration"]
     assert [r for r, ks in puts.items() if "plant/state" in ks] == ["sensor"]
     cmd = [r for r in security.ROLES if "query" in security.grants(r).get("cmd/*/*", ())]
-    assert cmd == ["orchestration", "ui", "operator"]
+    assert cmd == ["orchestration", "ui"]
     with pytest.raises(ValueError, match="unknown bus role 'intruder'"):
         security.grants("intruder")
 
@@ -147,7 +147,7 @@ def test_commands_and_stats_are_refused_to_the_wrong_roles(start_agent, bus_as, 
     sensor = start_agent(SensorAgent)
     site = mesh_settings.site
     inject = FaultRequest(kind="pump_degradation", cabinet=1, value=0.9).model_dump_json()
-    for role in ("control", "maintenance", "monitor", "configuration"):
+    for role in ("control", "maintenance", "monitor", "configuration", "operator"):
         assert bus_as(role).query(keys.cmd(site, "sensor", "inject_fault"), inject, timeout_s=1.0) == [], role
     assert not sensor.twin.plant.faults.active, "no fault was injected"
     assert bus_as("ui").request(keys.cmd(site, "sensor", "status"), CommandReply).ok

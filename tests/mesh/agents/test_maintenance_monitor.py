@@ -16,7 +16,8 @@ from tests.mesh.conftest import wait_until
 pytest.importorskip("lcmesh.mesh.tools.maintenance")
 
 
-def test_an_injected_fault_raises_one_alert_and_clearing_it_clears_the_alert(start_agent, client, mesh_settings):
+def test_an_injected_fault_raises_one_alert_and_clearing_it_clears_the_alert(start_agent, bus_as, mesh_settings):
+    client = bus_as("ui")  # cmd/* is the orchestrator's and the UI's
     site = mesh_settings.site
     fast = mesh_settings.model_copy(update={"speed_factor": 900.0})  # 17 ms steps: the clear needs ~25 of them
     alerts: list[Alert] = []

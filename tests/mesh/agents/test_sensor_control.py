@@ -106,7 +106,8 @@ def test_late_joiners_get_the_latest_state(start_agent, client, mesh_settings):
     assert got and got[0].system == "lcopt-5" and got[0].step >= 1
 
 
-def test_fault_injection_status_and_toolbox_queryables(start_agent, client, mesh_settings):
+def test_fault_injection_status_and_toolbox_queryables(start_agent, bus_as, mesh_settings):
+    client = bus_as("ui")  # cmd/* is the orchestrator's and the UI's
     sensor = start_agent(SensorAgent)
     assert wait_until(lambda: sensor.tally["steps"] >= 1, 20)
     key = keys.cmd(mesh_settings.site, "sensor", "inject_fault")

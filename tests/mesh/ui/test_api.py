@@ -269,7 +269,7 @@ def test_an_injected_fault_shows_as_alert_metric_and_chat_answer(api, ui_mesh):
     from lcmesh.mesh.messages import CommandReply, FaultRequest
 
     site = ui_mesh.settings.site
-    bus = Bus.connect(ui_mesh.settings, "fault-tester")
+    bus = Bus.connect(ui_mesh.settings, "fault-tester", role="ui")  # cmd/* is the orchestrator's and the UI's
     try:
         bus.request(keys.cmd(site, "sensor", "inject_fault"), CommandReply,
                     FaultRequest(kind="pump_degradation", cabinet=1, value=0.6))  # fmt: skip
