@@ -142,15 +142,9 @@ class Plant:
         """Change fault inputs, e.g. ``set_faults(pump_degradation=[0.4, 0, 0, 0, 0])``."""
         if self._faults is None:
             raise ValueError("this FMU has no fault inputs")
-        for name, value in changes.items():
-            target = getattr(self.faults, name)  # AttributeError names a bad field
-            target[...] = value
-        f = self.faults
-        self._faults.values[:] = np.concatenate(
-            [f.pump_degradation.ravel(), f.valve_stuck.ravel(), f.cell_out.ravel(), f.sensor_bias_k.ravel()]
-        )
-        self._faults.write()
-        f.active = bool(self._faults.values.any())
+        _write_inputs(self._faults, self.faults, ("pump_degradation", "valve_stuck", "cell_out", "sensor_bias_k"),
+                      changes)  # fmt: skip
+        self.faults.active = bool(self._faults.values.any())
 
     def set_deviations(self, **changes: np.ndarray | float) -> None:
         """Change how the plant differs from its description, e.g. ``set_deviations(hx_ua_factor=0.85)``.
@@ -160,14 +154,8 @@ class Plant:
         """
         if self._deviations is None:
             raise ValueError("this FMU has no deviation inputs")
-        for name, value in changes.items():
-            target = getattr(self.deviations, name)  # AttributeError names a bad field
-            target[...] = value
-        d = self.deviations
-        self._deviations.values[:] = np.concatenate(
-            [d.hx_ua_factor.ravel(), d.pump_head_factor.ravel(), d.ct_approach_factor.ravel()]
-        )
-        self._deviations.write()
+        _write_inputs(self._deviations, self.deviations, ("hx_ua_factor", "pump_head_factor", "ct_approach_factor"),
+                      changes)  # fmt: skip
 
     # --- state -----------------------------------------------------------
     def spin_up(self, blade_power_w: np.ndarray, wet_bulb_k: float, action: PlantAction, hours: float = 1.0) -> None:
@@ -231,3 +219,11 @@ def _views(buffer: np.ndarray, names, shapes) -> dict[str, np.ndarray]:
         views[name] = buffer[offset : offset + size].reshape(shape)
         offset += size
     return views
+
+
+def _write_inputs(block, group, order: tuple[str, ...], changes: dict) -> None:
+    """Set `changes` on `group`'s arrays, then write them to the FMU input `block` in `order`."""
+    for name, value in changes.items():
+        getattr(group, name)[...] = value  # AttributeError names a bad field
+    block.values[:] = np.concatenate([getattr(group, name).ravel() for name in order])
+    block.write()
