@@ -144,9 +144,9 @@ def client_config(settings: MeshSettings, role: str = "operator") -> zenoh.Confi
         else:
             password = security.read_password(settings.secrets_path, role)
         if password is None:
-            raise BusError(f"no bus password for role {role!r}: {security.SecretPaths(settings.secrets_path).password(role)} "
-                           "is missing (the router creates the run's secrets on its first start; or set "
-                           "LCMESH_BUS_PASSWORD)")  # fmt: skip
+            missing = security.SecretPaths(settings.secrets_path).password(role)
+            raise BusError(f"no bus password for role {role!r}: {missing} is missing (the router creates the run's "
+                           "secrets on its first start; or set LCMESH_BUS_PASSWORD)")  # fmt: skip
         config.insert_json5("transport/auth/usrpwd", json.dumps({"user": role, "password": password}))
     if _tls(settings.router_endpoints):
         ca = security.SecretPaths(settings.secrets_path).ca_cert
@@ -171,8 +171,8 @@ def router_config(settings: MeshSettings) -> zenoh.Config:
     if not settings.bus_auth:
         wide = [e for e in settings.listen_endpoints if _endpoint_host(e) not in ("127.0.0.1", "localhost", "::1")]
         if wide:
-            raise BusError(f"refusing to listen on {', '.join(wide)} without bus authentication; set LCMESH_BUS_AUTH=true "
-                           "(the default) or listen on 127.0.0.1 only")  # fmt: skip
+            raise BusError(f"refusing to listen on {', '.join(wide)} without bus authentication; set "
+                           "LCMESH_BUS_AUTH=true (the default) or listen on 127.0.0.1 only")  # fmt: skip
         return config
     hosts = security.default_tls_hosts([_endpoint_host(e) for e in settings.listen_endpoints] + settings.bus_tls_hosts)
     paths = security.ensure_secrets(settings.secrets_path, tls_hosts=hosts if tls else ())
@@ -205,9 +205,8 @@ getattr(threading, "_register_atexit", atexit.register)(_close_open_buses)
 class Bus:
     """One zenoh session with typed publish/subscribe/query helpers."""
 
-    def __init__(self, session, site: str, source: str):
-        self.session, self.site, self.source = session, site, source
-        self.role: str | None = None
+    def __init__(self, session, site: str, source: str, role: str | None = None):
+        self.session, self.site, self.source, self.role = session, site, source, role
         self.counters = Counters()
         self._publishers: dict[str, object] = {}
         self._latest: dict[str, bytes] = {}
@@ -241,9 +240,7 @@ class Bus:
         while True:
             attempt += 1
             try:
-                bus = cls(zenoh.open(client_config(settings, role)), settings.site, source)
-                bus.role = role
-                return bus
+                return cls(zenoh.open(client_config(settings, role)), settings.site, source, role)
             except (zenoh.ZError, BusError) as exc:
                 if time.monotonic() + delay > deadline:
                     raise BusError(
@@ -261,9 +258,7 @@ class Bus:
     def open_router(cls, settings: MeshSettings, source: str = "router") -> "Bus":
         """A router-mode session (what `lcmesh router` runs)."""
         try:
-            bus = cls(zenoh.open(router_config(settings)), settings.site, source)
-            bus.role = security.ROUTER_USER
-            return bus
+            return cls(zenoh.open(router_config(settings)), settings.site, source, security.ROUTER_USER)
         except zenoh.ZError as exc:
             raise BusError(f"could not start a router on {', '.join(settings.listen_endpoints)}: {exc}") from exc
 

@@ -120,18 +120,27 @@ def tcp_host_port(endpoint: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def start_ticks(pid: int) -> int | None:
-    """The process's start time in clock ticks after boot (/proc/PID/stat field 22): with the pid, its identity."""
+def _stat(pid: int) -> tuple[str, int] | None:
+    """(state letter, start time in clock ticks after boot) from /proc/PID/stat fields 3 and 22."""
     try:
         with open(f"/proc/{pid}/stat") as f:
-            return int(f.read().rsplit(")", 1)[1].split()[19])
+            fields = f.read().rsplit(")", 1)[1].split()
+        return fields[0], int(fields[19])
     except (OSError, ValueError, IndexError):
         return None
 
 
+def start_ticks(pid: int) -> int | None:
+    """The process's start time in clock ticks after boot: with the pid, its identity."""
+    stat = _stat(pid)
+    return stat[1] if stat else None
+
+
 def same_process(pid: int, start: int | None) -> bool:
-    """Whether `pid` runs now and is the process that started at `start` (not a recycled pid)."""
-    return start is not None and start_ticks(pid) == start
+    """Whether `pid` runs now (a zombie counts as gone) and is the process that started at `start` (not a recycled
+    pid)."""
+    stat = _stat(pid)
+    return start is not None and stat is not None and stat[0] != "Z" and stat[1] == start
 
 
 def read_pidfile(path: Path) -> tuple[int, int | None] | None:

@@ -248,7 +248,8 @@ def _ensure_tls(paths: SecretPaths, hosts: list[str]) -> None:
         except ValueError:
             names.append(x509.DNSName(host))
     key = ec.generate_private_key(ec.SECP256R1())
-    cert = (x509.CertificateBuilder().subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "lcmesh-router")]))
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "lcmesh-router")])
+    cert = (x509.CertificateBuilder().subject_name(subject)
             .issuer_name(ca_cert.subject).public_key(key.public_key()).serial_number(x509.random_serial_number())
             .not_valid_before(now - dt.timedelta(minutes=5)).not_valid_after(now + dt.timedelta(days=825))
             .add_extension(x509.SubjectAlternativeName(names), critical=False)

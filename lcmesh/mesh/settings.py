@@ -157,7 +157,8 @@ class MeshSettings(BaseSettings):
     connect_timeout_s: float = Field(30.0, ge=0, description="agents retry the router this long, then exit")
     bus_auth: bool = Field(True, description="user/password per role and the router's access control (docs/mesh.md, "
                            "Security); off only for a router on loopback")
-    secrets_dir: Path | None = Field(None, description="the run's bus passwords and TLS files (default DATA_DIR/secrets)")
+    secrets_dir: Path | None = Field(None, description="the run's bus passwords and TLS files (default "
+                                     "DATA_DIR/secrets)")
     bus_password: SecretStr | None = Field(None, description="this process's bus password instead of the file in "
                                            "SECRETS_DIR (an agent on another host)")
     bus_tls_hosts: EndpointHosts = Field([], description="extra names the router certificate is valid for (tls/ "

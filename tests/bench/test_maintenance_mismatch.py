@@ -63,7 +63,7 @@ def test_a_mismatch_draw_stays_in_its_documented_bands(lcopt5):
 
 def _hard_plant(system) -> PlantMismatch:
     """The far edge of every documented band, with two load steps inside the short window."""
-    C, N = system.cabinets.count, system.towers.count
+    C = system.cabinets.count
     return PlantMismatch(
         hx_ua_factor=np.array([0.8, 1.2, 0.8, 1.2, 0.8]), pump_head_factor=np.array([0.8, 0.8, 1.2, 1.2, 0.8]),
         ct_approach_factor=np.array([1.2, 0.8]), fouling_per_day=np.full(C, 0.05),

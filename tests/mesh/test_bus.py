@@ -15,7 +15,7 @@ from tests.mesh.conftest import make_settings, wait_until
 
 @pytest.fixture
 def mesh_settings(tmp_path):
-    """The bus's own mechanics, on any key: without authentication (tests/mesh/test_security.py has the router's ACL)."""
+    """The bus's own mechanics, on any key, without authentication (the router's ACL: tests/mesh/test_security.py)."""
     return make_settings(tmp_path / "mesh", bus_auth=False)
 
 

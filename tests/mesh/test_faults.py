@@ -152,7 +152,7 @@ def _kill_and_watch(mesh: Mesh, agent_id: str, sig: int) -> tuple[float, float]:
     dead = wait_until(lambda: mesh.token_change_after(agent_id, t0, False), DEATH_SEEN_S)
     back = wait_until(lambda: mesh.token_change_after(agent_id, t0 + (dead or 0), True), BACK_S)
     if sig == signal.SIGSTOP:
-        assert wait_until(lambda: not _running(pid) or _zombie(pid), 30), "a hung agent must be killed, not left stopped"
+        assert wait_until(lambda: not _running(pid) or _zombie(pid), 30), "a hung agent is killed, not left stopped"
     return dead, back
 
 
@@ -221,7 +221,7 @@ def test_sigkill_is_seen_and_recovered(mesh, agent_id):
     else:  # the new orchestrator adopts the running agents instead of starting duplicates
         assert wait_until(lambda: [e for t, e in mesh.events if t >= t_kill and e.kind == "adopted"], 5)
         assert {a: mesh.pid(a) for a in others} == others
-    if agent_id != "sensor":  # the plant kept stepping (every step's action is in history: test_no_history_row_was_lost)
+    if agent_id != "sensor":  # the plant kept stepping (each step's action in history: test_no_history_row_was_lost)
         with mesh.lock:
             times = [t for t, _ in mesh.applied if t >= t_kill]
         gaps = [b - a for a, b in zip(times, times[1:])]

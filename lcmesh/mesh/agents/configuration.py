@@ -6,8 +6,8 @@ reader always sees the version). Changes go to ``lcmesh/{site}/configure/{role}/
 with a ``ConfigUpdate`` payload: ``changes`` is a partial MeshConfig (nested dicts merge); through
 a section's key only that section may change. The router lets only the role named in the key
 reach it (``ui`` and ``operator``), so the audit's ``changed_by`` starts with that authenticated
-role; the update's own ``by`` (who the UI vouches for) follows it. The new version is validated (pydantic, the controller
-registry, the guardrails against the plant), written to the store file atomically, audited in
+role; the update's own ``by`` (who the UI vouches for) follows it. The new version is validated
+(pydantic, the controller registry, the guardrails against the plant), written to the store file atomically, audited in
 history's ``config_changes`` with the diff, and published on ``config/all``. Errors name the
 field and what would be valid.
 """

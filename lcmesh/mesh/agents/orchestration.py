@@ -4,9 +4,9 @@ Death is seen three ways: the child process exits (polled every 50 ms), its live
 goes and does not come back within ``hung_after_s`` (the router drops a session at once when its
 socket closes, or after the lease when the process hangs, e.g. SIGSTOP), or it stays alive but
 stops publishing stats for ``hung_after_s``. The last two count only while this agent's own
-session reaches a router, and from ``RECONNECT_GRACE_S`` after it got it back from an outage: when the router dies
-every token goes at once and no stats flow, yet the agents are healthy and reconnect by
-themselves. A dead or hung agent is SIGKILLed (its whole process group), reported as an
+session reaches a router, and from ``RECONNECT_GRACE_S`` after it got it back from an outage:
+when the router dies every token goes at once and no stats flow, yet the agents are healthy and
+reconnect by themselves. A dead or hung agent is SIGKILLed (its whole process group), reported as an
 event with the tail of its log, and restarted after a backoff that doubles on repeated deaths
 and resets once it has run for ``healthy_after_s``. A role whose module does not import yet
 (the UI before its issue lands) is skipped with a clear log line and a ``skipped`` event.

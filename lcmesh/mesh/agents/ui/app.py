@@ -168,7 +168,8 @@ def create_app(ctx: UiContext) -> FastAPI:
     for module in (read, control, chat, stream):
         app.include_router(module.router)
     # the routers' own routes: the app's list may hold them by reference only (FastAPI includes routers lazily)
-    api_routes = [r for module in (read, control, chat, stream) for r in module.router.routes if isinstance(r, APIRoute)]
+    routes = [r for module in (read, control, chat, stream) for r in module.router.routes]
+    api_routes = [r for r in routes if isinstance(r, APIRoute)]
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     app.openapi = functools.cache(lambda: site_openapi(app, ctx.system, ctx.ui))  # FastAPI's documented override
     # the last added runs first: Host allow-list, CORS, latency, body limit, token, then the routes

@@ -2,8 +2,8 @@
 
 Names follow Prometheus conventions and pass ``promtool check metrics``: base units in the name
 (``_celsius``, ``_watts``, ``_pascals``, ``_grams_per_second`` (the base unit of mass is the gram),
-``_ratio``, ``_seconds``, ``_bytes``), counters end in ``_total``; labels ``cdu``, ``cabinet``, ``branch``, ``blade_group``, ``tower``, ``agent``, ``role``,
-``source``, ``severity``, ``intent``. One CDU serves each cabinet in the twin, so ``cdu`` equals
+``_ratio``, ``_seconds``, ``_bytes``), counters end in ``_total``; labels ``cdu``, ``cabinet``,
+``branch``, ``blade_group``, ``tower``, ``agent``, ``role``, ``source``, ``severity``, ``intent``. One CDU serves each cabinet in the twin, so ``cdu`` equals
 ``cabinet``; numbers count from 1. Plant gauges are computed at scrape time from the state the UI
 holds, so a scrape costs nothing between scrapes. Counters count from the UI agent's start.
 """
@@ -50,7 +50,7 @@ CDU_GAUGES = (
     ("cdu_heat_watts", "cdu_heat_w", _same, "heat removed by the CDU"),
 )  # fmt: skip
 TOWER_GAUGES = (
-    ("tower_leaving_water_temperature_celsius", "ct_leaving_temp_k", _celsius, "cooling-tower leaving water temperature"),
+    ("tower_leaving_water_temperature_celsius", "ct_leaving_temp_k", _celsius, "cooling-tower leaving water temp"),
     ("tower_leaving_water_setpoint_celsius", "applied_lw_setpoint_k", _celsius, "leaving-water setpoint in force"),
     ("tower_approach_celsius", "approach_k", _same, "leaving water minus wet bulb"),
     ("tower_fan_speed_ratio", "fan_speed", _same, "fan speed as a fraction of nominal"),

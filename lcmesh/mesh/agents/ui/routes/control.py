@@ -53,7 +53,8 @@ def _by(caller: str) -> str:
 def put_config(request: Request, body: ConfigChange, caller: Caller) -> dict:
     """Change the configuration (a partial document; nested sections merge). Returns the new version."""
     changes = body.changes.model_dump(exclude_unset=True)  # what was sent, typed: the rest merges from the current
-    doc = request.app.state.ctx.require_gateway().update_config(changes, _by(caller), body.reason, body.expected_version)
+    gateway = request.app.state.ctx.require_gateway()
+    doc = gateway.update_config(changes, _by(caller), body.reason, body.expected_version)
     return doc.model_dump(mode="json")
 
 

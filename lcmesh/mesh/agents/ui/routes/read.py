@@ -185,7 +185,8 @@ def history(
     columns = [UI_FIELDS[name] for name in selected]
     rows, every = [], 1
     if last is None or last >= first:
-        span = (last if last is not None else newest if newest is not None else _newest_step(ctx, reader, run)) - first + 1
+        end = last if last is not None else newest if newest is not None else _newest_step(ctx, reader, run)
+        span = end - first + 1
         points = min(max_points, ctx.ui.history_max_points)
         every = max(1, math.ceil(span / points))
         rows = reader.states(start_step=first, end_step=last, fields=columns, run_id=run, every=every, limit=points)
