@@ -54,7 +54,6 @@ def _check_endpoints(field: str, endpoints: list[str]) -> list[str]:
 
 
 EndpointList = Annotated[list[str], NoDecode]
-EndpointHosts = Annotated[list[str], NoDecode]
 
 
 class _Component(BaseModel):
@@ -161,7 +160,7 @@ class MeshSettings(BaseSettings):
                                      "DATA_DIR/secrets)")
     bus_password: SecretStr | None = Field(None, description="this process's bus password instead of the file in "
                                            "SECRETS_DIR (an agent on another host)")
-    bus_tls_hosts: EndpointHosts = Field([], description="extra names the router certificate is valid for (tls/ "
+    bus_tls_hosts: EndpointList = Field([], description="extra names the router certificate is valid for (tls/ "
                                          "endpoints)")
     system: str = "lcopt-5"
     trace: str = "frontier-2024-04-07"

@@ -24,6 +24,7 @@ from importlib import resources
 from pathlib import Path
 
 from fastapi import FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
@@ -114,10 +115,11 @@ def _closest(model: type[BaseModel] | None, loc: tuple) -> str:
 
 
 def _body_model(request: Request) -> type[BaseModel] | None:
-    """The pydantic model of the route's body parameter, if it has one."""
-    endpoint = getattr(request.scope.get("route"), "endpoint", None)
-    hints = typing.get_type_hints(endpoint, include_extras=False) if endpoint else {}
-    return next((t for t in hints.values() if isinstance(t, type) and issubclass(t, BaseModel)), None)
+    """The pydantic model of the route's body parameter, if it has one (FastAPI resolved it when it built the route)."""
+    dependant = getattr(request.scope.get("route"), "dependant", None)
+    params = dependant.body_params if dependant is not None else []
+    model = params[0].field_info.annotation if params else None
+    return model if isinstance(model, type) and issubclass(model, BaseModel) else None
 
 
 def create_app(ctx: UiContext) -> FastAPI:
@@ -151,7 +153,7 @@ def create_app(ctx: UiContext) -> FastAPI:
             headers["Allow"] = ", ".join(allow)
             detail = f"{request.method} is not allowed on {request.url.path}; use {' or '.join(allow)}"
             return JSONResponse({"detail": detail}, status_code=405, headers=headers)
-        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=headers)
+        return await http_exception_handler(request, exc)  # FastAPI's own ({"detail"}, no body on 204/304)
 
     @app.exception_handler(NotReady)
     async def _not_ready(_request: Request, exc: NotReady):

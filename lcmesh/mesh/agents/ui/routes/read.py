@@ -178,15 +178,13 @@ def history(
         first = max(first, math.ceil(start_s / step_s))
     if end_s is not None:
         last = _min(last, math.floor(end_s / step_s))
-    newest = None
     if last_s is not None or all(v is None for v in (start_s, end_s, start_step, end_step)):
         newest = _newest_step(ctx, reader, run)
         first, last = max(first, newest - int(round((last_s or DEFAULT_WINDOW_S) / step_s))), _min(last, newest)
     columns = [UI_FIELDS[name] for name in selected]
     rows, every = [], 1
     if last is None or last >= first:
-        end = last if last is not None else newest if newest is not None else _newest_step(ctx, reader, run)
-        span = end - first + 1
+        span = (last if last is not None else _newest_step(ctx, reader, run)) - first + 1
         points = min(max_points, ctx.ui.history_max_points)
         every = max(1, math.ceil(span / points))
         rows = reader.states(start_step=first, end_step=last, fields=columns, run_id=run, every=every, limit=points)
