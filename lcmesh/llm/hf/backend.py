@@ -274,7 +274,7 @@ def draft_verified_greedy(
 
     cache = DynamicCache()
     generated: list[int] = []
-    passes, sources, span, timings = 0, (draft, prompt), LOOKUP_SPAN_FIRST, []
+    sources, span, timings = (draft, prompt), LOOKUP_SPAN_FIRST, []  # one timing per forward pass
     feed, out_of_time = list(prompt), False
     while len(generated) < max_new_tokens and not (generated and generated[-1] == eos):
         if stopped and generated and stopped(generated):
@@ -286,14 +286,13 @@ def draft_verified_greedy(
             proposal = _lookup(generated, sources, min(span, room - 1)) if room > 1 else []
         n = len(feed) + len(proposal)
         t0 = clock()
-        if passes and deadline is not None and t0 + _pass_seconds(timings, n) > deadline:
+        if timings and deadline is not None and t0 + _pass_seconds(timings, n) > deadline:
             out_of_time = True  # this pass would end after the deadline: stop now, not late
             break
         logits = model(input_ids=torch.tensor([feed + proposal]), past_key_values=cache, use_cache=True,
                        logits_to_keep=len(proposal) + 1).logits  # the vocabulary head on the verified positions only
         predicted = logits[0].argmax(-1).tolist()
         timings.append((n, clock() - t0))
-        passes += 1
         accepted = 0
         while accepted < len(proposal) and proposal[accepted] == predicted[accepted]:
             accepted += 1
