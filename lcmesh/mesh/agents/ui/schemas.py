@@ -306,8 +306,9 @@ class ModeRequest(_In):
 
 # Wide bounds that catch typos (and keep non-finite numbers out); the guardrails clamp further to the configured
 # limits. The OpenAPI document adds this site's counts (a list holds one value per cabinet, tower or branch).
-TempC = Annotated[float, Field(ge=0, le=80)]
-Psi = Annotated[float, Field(ge=0, le=100)]
+TEMP_C_MAX, PSI_MAX = 80.0, 100.0
+TempC = Annotated[float, Field(ge=0, le=TEMP_C_MAX)]
+Psi = Annotated[float, Field(ge=0, le=PSI_MAX)]
 Fraction = Annotated[float, Field(ge=0, le=1)]
 SETPOINT_FIELDS = ("supply_temp_setpoint_c", "dp_setpoint_psi", "lw_setpoint_c", "valve_fractions")
 

@@ -19,7 +19,9 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from lcmesh.mesh.agents.ui.answers import NotReady
-from lcmesh.mesh.agents.ui.schemas import ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest, errors
+from lcmesh.mesh.agents.ui.schemas import (
+    PSI_MAX, TEMP_C_MAX, ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest, errors,
+)  # fmt: skip
 from lcmesh.mesh.agents.ui.security import token_matches
 from lcmesh.mesh.agents.ui.views import c, psi
 from lcmesh.mesh.messages import ActionModel, ConfigDoc
@@ -144,11 +146,11 @@ def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) 
         _per_item("lw_setpoint_c", body.lw_setpoint_c, N, list(range(N)), base.lw_setpoint_k, to_k)
         if body.lw_setpoint_c is not None else base.lw_setpoint_k.copy(),
     )  # fmt: skip
-    for name, values, low, high in (("supply_temp_setpoint_c", candidate.supply_temp_setpoint_k, K0, K0 + 80.0),
-                                    ("dp_setpoint_psi", candidate.dp_setpoint_pa, 0.0, 100.0 * PSI_TO_PA),
-                                    ("lw_setpoint_c", candidate.lw_setpoint_k, K0, K0 + 80.0)):  # fmt: skip
+    for name, values, low, high in (("supply_temp_setpoint_c", candidate.supply_temp_setpoint_k, K0, K0 + TEMP_C_MAX),
+                                    ("dp_setpoint_psi", candidate.dp_setpoint_pa, 0.0, PSI_MAX * PSI_TO_PA),
+                                    ("lw_setpoint_c", candidate.lw_setpoint_k, K0, K0 + TEMP_C_MAX)):  # fmt: skip
         if not np.all(np.isfinite(values)) or np.any(values < low) or np.any(values > high):
-            unit_low, unit_high = (0.0, 80.0) if name.endswith("_c") else (0.0, 100.0)
+            unit_low, unit_high = (0.0, TEMP_C_MAX) if name.endswith("_c") else (0.0, PSI_MAX)
             raise HTTPException(422, f"`{name}` must be within [{unit_low:g}, {unit_high:g}] (the guardrails clamp "
                                      "further to the configured limits)")  # fmt: skip
     limits = (ctx.config_doc().config.guardrails if ctx.config_doc() else None)
