@@ -185,7 +185,6 @@ def run_day(
         trace.blade_power_w(k, out=power)
         if mismatch is not None:
             mismatch.scale_load(k, power, groups)
-            mismatch.apply(plant, k, _injected_bias(injection, k, system))
         if injection is not None and k == injection.step:
             state = plant.save_state()
             copied = healthy.runner.deserialize_state(plant.runner.serialize_state(state))
@@ -194,8 +193,8 @@ def run_day(
             plant.free_state(state)
             twin_ctrl, healthy_out, twin_exercise = copy.deepcopy(controller), healthy.out, copy.deepcopy(exercise)
             plant.set_faults(**injection.faults(system))
-            if mismatch is not None:
-                mismatch.apply(plant, k, _injected_bias(injection, k, system))
+        if mismatch is not None:  # after the injection: its faults would overwrite the mismatch's sensor error
+            mismatch.apply(plant, k, _injected_bias(injection, k, system))
         action = controller.act(Observation(out, wet_bulb, power, k * trace.step_s))
         action, _ = exercise.stroked(k, action, out)
         out = plant.step(power, wet_bulb, action)
