@@ -142,8 +142,7 @@ class Plant:
         """Change fault inputs, e.g. ``set_faults(pump_degradation=[0.4, 0, 0, 0, 0])``."""
         if self._faults is None:
             raise ValueError("this FMU has no fault inputs")
-        _write_inputs(self._faults, self.faults, ("pump_degradation", "valve_stuck", "cell_out", "sensor_bias_k"),
-                      changes)  # fmt: skip
+        _write_inputs(self._faults, self.faults, changes)
         self.faults.active = bool(self._faults.values.any())
 
     def set_deviations(self, **changes: np.ndarray | float) -> None:
@@ -154,8 +153,7 @@ class Plant:
         """
         if self._deviations is None:
             raise ValueError("this FMU has no deviation inputs")
-        _write_inputs(self._deviations, self.deviations, ("hx_ua_factor", "pump_head_factor", "ct_approach_factor"),
-                      changes)  # fmt: skip
+        _write_inputs(self._deviations, self.deviations, changes)
 
     # --- state -----------------------------------------------------------
     def spin_up(self, blade_power_w: np.ndarray, wet_bulb_k: float, action: PlantAction, hours: float = 1.0) -> None:
@@ -192,10 +190,9 @@ class Plant:
             if channel is None:
                 continue
             values, offset = channel.read(), 0
-            for name, array in vars(mirror).items():
-                if isinstance(array, np.ndarray):
-                    array[...] = values[offset : offset + array.size].reshape(array.shape)
-                    offset += array.size
+            for array in _input_arrays(mirror):
+                array[...] = values[offset : offset + array.size].reshape(array.shape)
+                offset += array.size
         self.faults.active = bool(self._faults is not None and self._faults.values.any())
 
     def free_state(self, state: FmuState) -> None:
@@ -221,9 +218,14 @@ def _views(buffer: np.ndarray, names, shapes) -> dict[str, np.ndarray]:
     return views
 
 
-def _write_inputs(block, group, order: tuple[str, ...], changes: dict) -> None:
-    """Set `changes` on `group`'s arrays, then write them to the FMU input `block` in `order`."""
+def _input_arrays(group) -> list[np.ndarray]:
+    """`group`'s input arrays in field order: the FMU input block's layout (faults, deviations)."""
+    return [value for value in vars(group).values() if isinstance(value, np.ndarray)]
+
+
+def _write_inputs(block, group, changes: dict) -> None:
+    """Set `changes` on `group`'s arrays, then write them all to the FMU input `block`."""
     for name, value in changes.items():
         getattr(group, name)[...] = value  # AttributeError names a bad field
-    block.values[:] = np.concatenate([getattr(group, name).ravel() for name in order])
+    block.values[:] = np.concatenate([array.ravel() for array in _input_arrays(group)])
     block.write()
