@@ -139,15 +139,18 @@ def token_matches(expected: str, authorization: str | None) -> bool:
     return hmac.compare_digest(given.strip().encode(), expected.encode())
 
 
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
+
+
 def allowed_origins(host: str, port: int, extra: list[str]) -> list[str]:
     """The page's own origins (every loopback spelling when local) plus the configured extra ones."""
-    hosts = {host, "127.0.0.1", "localhost", "[::1]"} if is_loopback(host) else {host}
+    hosts = {host, *LOOPBACK_NAMES} if is_loopback(host) else {host}
     return sorted({f"http://{_bracketed(h)}:{port}" for h in hosts} | set(extra))
 
 
 def allowed_hosts(host: str, port: int, extra: list[str]) -> list[str]:
     """``Host`` header values the UI answers to: the bind host and the loopback names with `port`, plus `extra`."""
-    own = [f"{_bracketed(h)}:{port}" for h in dict.fromkeys((host, "127.0.0.1", "localhost", "::1"))]
+    own = [f"{_bracketed(h)}:{port}" for h in dict.fromkeys((host, *LOOPBACK_NAMES))]
     return own + [e for e in extra if e not in own]
 
 
