@@ -1,41 +1,80 @@
+"""Write the reference system descriptions (lcmesh/twin/systems/*.json), sized for the Frontier day's real loads.
+
+Every CDU-cabinet pair carries one CDU column of the trace unscaled (mean 650 kW, 99th percentile 1.06 MW),
+so the per-CDU parts (pumps, heat exchanger, primary valve, blade groups) are the schema defaults
+(lcmesh/twin/system.py, sized in docs/twin.md "Sizing for the real loads"). What scales with the number of
+cabinets C is the plant behind them: tower cells, their water and fans, the plate heat exchangers, the
+hot-water (HTW) loop's volumes, header resistance and pumps. Run from the repository root:
+
+    python docs/scripts/make_reference_systems.py
+"""
+
 import json
-base_cell_heat = 1.1e6 * 250 / 650 * 1.15 / 1.3
-def system(name, C, N, m, bgpb=1, desc=""):
-    share = C / 25
-    load = C * 250e3 * 1.15  # mean trace load with the non-linear heat term
-    cell_heat = load / (N * m) * 1.25
-    scale = cell_heat / base_cell_heat
+from pathlib import Path
+
+CDU_DESIGN_W = 1.07e6  # per CDU: the day's 99th percentile CDU load, rounded (docs/twin.md)
+CELL_DESIGN_W = 25 * CDU_DESIGN_W / 20  # Frontier's 20 cells share the site's design load
+TOWER_WATER_PER_CDU_KG_S = 40.0  # tower-loop water per CDU of load (docs/twin.md)
+FAN_PER_CELL_W = 37.3e3  # ORNL's cooling-tower library cell, at CELL_DESIGN_W
+EHX_UA_PER_TRAIN_W_K = 4.04e6  # ORNL's plate heat exchanger, one train of Frontier's four
+FRONTIER_CDUS = 25
+RACK_COOLANT_M3 = 0.083  # ORNL's cabinet cooling channels; a CDU-cabinet pair here is the 3 racks behind a CDU
+
+
+def system(name: str, C: int, N: int, m: int, groups_per_branch: int = 1, desc: str = "") -> dict:
+    share = C / FRONTIER_CDUS
+    cell_heat = C * CDU_DESIGN_W / (N * m)
+    cell_scale = cell_heat / CELL_DESIGN_W
     return {
         "schema_version": 1,
         "name": name,
         "description": desc,
         "step_s": 15.0,
         "substeps": 15,
-        "cabinets": {"count": C, "branches": 3, "blade_groups_per_branch": bgpb},
+        "cabinets": {"count": C, "branches": 3, "blade_groups_per_branch": groups_per_branch,
+                     "coolant_volume_m3": RACK_COOLANT_M3 * 3},
         "towers": {
-            "count": N, "cells": m,
-            "cell": {"design_heat_w": round(cell_heat, -3),
-                     "water_flow_kg_s": round(62.9 * scale, 2),
-                     "fan_power_nominal_w": round(82e3 * scale, -2)},
-            "ehx_ua_w_per_k": round(4.04e6 * max(scale, 0.25), -3),
+            "count": N,
+            "cells": m,
+            "cell": {
+                "design_heat_w": round(cell_heat, -3),
+                "water_flow_kg_s": round(TOWER_WATER_PER_CDU_KG_S * C / (N * m), 2),
+                "fan_power_nominal_w": round(FAN_PER_CELL_W * cell_scale, -2),
+            },
+            "ehx_ua_w_per_k": round(EHX_UA_PER_TRAIN_W_K * share * 4 / N, -3),
             "basin_volume_m3": round(110 * share / N, 2),
         },
-        "htw": {"supply_volume_m3": round(100 * share, 2), "return_volume_m3": round(125 * share, 2),
-                "pump": {"head_m": [72.0, 37.8], "flow_m3_s": [0.003, 0.477], "efficiency": 0.835,
-                         "n_parallel": max(1, round(4 * share)), "speed_min": 0.3, "speed_max": 1.2}},
+        "htw": {
+            "supply_volume_m3": round(100 * share, 2),
+            "return_volume_m3": round(125 * share, 2),
+            "r_header_pa_per_kg_s": round(2000 / FRONTIER_CDUS / share, 2),
+            "pump": {"head_m": [72.0, 37.8], "flow_m3_s": [0.003, 0.477], "efficiency": 0.835,
+                     "n_parallel": max(1, round(4 * share)), "speed_min": 0.3, "speed_max": 1.2},
+        },
         "heat_recovery": None,
     }
-out = {
- "lcopt-5": system("lcopt-5", 5, 2, 2, desc="LC-Opt Table 3: N=2 towers, m=2 cells, C=5 cabinets, B=3 blade groups"),
- "lcopt-10": system("lcopt-10", 10, 2, 2, desc="LC-Opt Table 4: N=2, m=2, C=10, B=3"),
- "lcopt-15": system("lcopt-15", 15, 2, 2, desc="LC-Opt Table 4: N=2, m=2, C=15, B=3"),
- "lcopt-20": system("lcopt-20", 20, 3, 2, desc="LC-Opt Table 4: N=3, m=2, C=20, B=3"),
- "lcopt-25": system("lcopt-25", 25, 4, 2, desc="LC-Opt Table 4: N=4, m=2, C=25, B=3"),
- "frontier-full": system("frontier-full", 25, 4, 5, bgpb=133,
-     desc="Frontier-scale: 25 CDU-cabinet pairs (each the 3 racks behind one CDU), 3 branches each, 133 blade groups per branch (9,975 blade groups), 4 towers of 5 cells"),
-}
-hr = dict(out["lcopt-5"]); hr["name"] = "lcopt-5-hru"; hr["description"] = "lcopt-5 with the heat-recovery unit (LC-Opt Section 7.3)"
-hr["heat_recovery"] = {"ua_w_per_k": 150e3, "district_flow_kg_s": 20.0, "district_supply_temp_k": 293.15}
-out["lcopt-5-hru"] = hr
-for k, v in out.items():
-    json.dump(v, open(f"lcmesh/twin/systems/{k}.json", "w"), indent=2)
+
+
+def main() -> None:
+    out = {
+        "lcopt-5": system("lcopt-5", 5, 2, 2, desc="LC-Opt Table 3 topology: N=2 towers, m=2 cells, C=5 cabinets, B=3 blade groups; real CDU loads"),
+        "lcopt-10": system("lcopt-10", 10, 2, 2, desc="LC-Opt Table 4: N=2, m=2, C=10, B=3; real CDU loads"),
+        "lcopt-15": system("lcopt-15", 15, 2, 2, desc="LC-Opt Table 4: N=2, m=2, C=15, B=3; real CDU loads"),
+        "lcopt-20": system("lcopt-20", 20, 3, 2, desc="LC-Opt Table 4: N=3, m=2, C=20, B=3; real CDU loads"),
+        "lcopt-25": system("lcopt-25", 25, 4, 2, desc="LC-Opt Table 4: N=4, m=2, C=25, B=3; real CDU loads"),
+        "frontier-full": system(
+            "frontier-full", 25, 4, 5, groups_per_branch=133,
+            desc="Frontier-scale: 25 CDU-cabinet pairs (each the 3 racks behind one CDU), 3 branches each,"
+            " 133 blade groups per branch (9,975 blade groups), 4 towers of 5 cells; real CDU loads",
+        ),
+    }
+    hru = dict(out["lcopt-5"], name="lcopt-5-hru", description="lcopt-5 with the heat-recovery unit (LC-Opt Section 7.3)")
+    hru["heat_recovery"] = {"ua_w_per_k": 150e3, "district_flow_kg_s": 20.0, "district_supply_temp_k": 293.15}
+    out["lcopt-5-hru"] = hru
+    folder = Path("lcmesh/twin/systems")
+    for name, desc in out.items():
+        (folder / f"{name}.json").write_text(json.dumps(desc, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -37,7 +37,7 @@ def evaluate(system_name: str, controller: str, policy: Path | None = None, hour
 
     system = load_system(system_name)
     kwargs = {"policy": str(policy)} if policy is not None else {}
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0, hours=hours)
+    trace = load_trace(FRONTIER_DAY, system, scenario="lcopt", hours=hours)
     with Plant(system) as plant:
         kpi = run_twin(plant, trace, make_controller(controller, system, **kwargs)).kpi
     row = {k: kpi[k] for k in ("d_blade_pct", "ct_power_kw_avg", "it_cooling_kw_avg", "pump_power_kw_avg")}
@@ -67,7 +67,7 @@ def record_series(system_name: str, controller: str, policy: Path | None, hours:
     """Per-step branch power, share, valve fraction and blade temperature (T, C, B) over the Frontier day."""
     system = load_system(system_name)
     C, B = system.cabinets.count, system.cabinets.branches
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0, hours=hours)
+    trace = load_trace(FRONTIER_DAY, system, scenario="lcopt", hours=hours)
     ctrl = make_controller(controller, system, **({"policy": str(policy)} if policy else {}))
     power = np.zeros(system.n_blade_groups)
     rec = {k: [] for k in ("branch_power_kw", "branch_share", "valve_fraction", "branch_temp_c")}

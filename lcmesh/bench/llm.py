@@ -95,9 +95,9 @@ def _eval_day_decisions(cfg: BenchLlmConfig, system, n: int):
     from lcmesh.distill.llm import make_teacher
     from lcmesh.twin.controllers import Observation
     from lcmesh.twin.plant import Plant
-    from lcmesh.twin.traces import load_trace
+    from lcmesh.twin.traces import load_trace, scenario_with_offset
 
-    trace = load_trace(EVAL_TRACE, system, wet_bulb_offset_k=WET_BULB_OFFSET_K)
+    trace = load_trace(EVAL_TRACE, system, scenario=scenario_with_offset("lcopt", WET_BULB_OFFSET_K))
     picks = set(np.linspace(60, trace.n_steps - 1, n).astype(int).tolist())
     teacher, found, previous = make_teacher(cfg.teacher, system), [], None
     with Plant(system) as plant:
@@ -172,9 +172,9 @@ def _control_latency(cfg: BenchLlmConfig, system, backend) -> dict:
     from lcmesh.llm.controller import LlmController
     from lcmesh.twin.controllers import Observation
     from lcmesh.twin.plant import Plant
-    from lcmesh.twin.traces import load_trace
+    from lcmesh.twin.traces import load_trace, scenario_with_offset
 
-    trace = load_trace(EVAL_TRACE, system, wet_bulb_offset_k=WET_BULB_OFFSET_K, hours=1)
+    trace = load_trace(EVAL_TRACE, system, scenario=scenario_with_offset("lcopt", WET_BULB_OFFSET_K), hours=1)
     controller = LlmController(system, backend=backend, period_steps=1)
     lat = []
     with Plant(system) as plant:
@@ -193,9 +193,9 @@ def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
     from lcmesh.llm.controller import LlmController
     from lcmesh.twin.plant import Plant
     from lcmesh.twin.run import run_twin
-    from lcmesh.twin.traces import load_trace
+    from lcmesh.twin.traces import load_trace, scenario_with_offset
 
-    trace = load_trace(EVAL_TRACE, system, wet_bulb_offset_k=WET_BULB_OFFSET_K, hours=cfg.hours)
+    trace = load_trace(EVAL_TRACE, system, scenario=scenario_with_offset("lcopt", WET_BULB_OFFSET_K), hours=cfg.hours)
     rows = {}
     for name in ("g36", "ppo", "tree", "llm"):
         try:

@@ -32,7 +32,7 @@ def pin_to_one_core() -> int | None:
 def plant_loop_steps_per_second(system_name: str = "lcopt-5", n_steps: int = 5760, repeats: int = 3) -> dict:
     """The raw twin loop: trace inputs + static rule + one FMU step, no env wrapper."""
     system = load_system(system_name)
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0)
+    trace = load_trace(FRONTIER_DAY, system)
     rates = []
     with Plant(system) as plant:
         for _ in range(repeats):
@@ -44,7 +44,7 @@ def plant_loop_steps_per_second(system_name: str = "lcopt-5", n_steps: int = 576
 def list_api_comparison(system_name: str = "lcopt-5", n_steps: int = 3000, repeats: int = 3) -> dict:
     """The same step loop through raw fmi2 calls with numpy buffers vs fmpy's list-based setReal/getReal."""
     system = load_system(system_name)
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0)
+    trace = load_trace(FRONTIER_DAY, system)
     raw, listed = [], []
     with Plant(system) as plant:
         runner = plant.runner
@@ -86,7 +86,7 @@ def list_api_comparison(system_name: str = "lcopt-5", n_steps: int = 3000, repea
 def frontier_day(repeats: int = 3) -> dict:
     """Wall time of a 24 h day (5,760 steps) of frontier-full with the static rule."""
     system = load_system("frontier-full")
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0)
+    trace = load_trace(FRONTIER_DAY, system)
     walls, kpi = [], None
     with Plant(system) as plant:
         for _ in range(repeats):

@@ -23,6 +23,10 @@ app.add_typer(distill_app, name="distill")
 console = Console(stderr=True)
 
 SystemOpt = Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")]
+ScenarioOpt = Annotated[
+    str, typer.Option(help="frontier (real loads and weather), design-day (Knoxville's 0.4 % design wet bulb) or "
+                      "lcopt (LC-Opt's +15 K and 25:1 branch skew); docs/traces.md")
+]
 JsonOpt = Annotated[Optional[Path], typer.Option("--json", help="write the result as JSON here")]
 
 

@@ -11,7 +11,7 @@ import typer
 from rich.table import Table
 
 from lcmesh.cli.common import (
-    JsonOpt, SystemOpt, app, bench_app, console, fail, load_system_or_fail, progress_bar, write_json,
+    JsonOpt, ScenarioOpt, SystemOpt, app, bench_app, console, fail, load_system_or_fail, progress_bar, write_json,
 )  # fmt: skip
 
 
@@ -81,7 +81,8 @@ def explain_twin(
     level: Annotated[list[str], typer.Option(help="short, detailed, very_detailed; repeatable")] = [
         "short", "detailed", "very_detailed"
     ],  # fmt: skip
-    wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb (LC-Opt's hardening: 15)")] = 15.0,
+    scenario: ScenarioOpt = "frontier",
+    wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb, on top of the scenario's")] = 0.0,
 ) -> None:
     """Run a controller on the twin and write our deterministic explanations of its decisions as JSON lines."""
     from lcmesh.mesh.tools.explain import LEVELS
@@ -97,7 +98,7 @@ def explain_twin(
         fail(f"`--level` must be one of {', '.join(LEVELS)}, got {', '.join(bad)}")
     desc = load_system_or_fail(system)
     try:
-        tr = load_trace(trace, desc, wet_bulb_offset_k=wet_bulb_offset)
+        tr = load_trace(trace, desc, scenario=scenario, wet_bulb_offset_k=wet_bulb_offset)
         ctrl = make_controller(controller, desc)
     except (TraceError, ValueError) as exc:
         fail(str(exc))

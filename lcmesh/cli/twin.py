@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from lcmesh.cli.common import (
-    JsonOpt, SystemOpt, bench_app, console, fail, load_system_or_fail, progress_bar, twin_app, write_json,
+    JsonOpt, ScenarioOpt, SystemOpt, bench_app, console, fail, load_system_or_fail, progress_bar, twin_app, write_json,
 )  # fmt: skip
 
 
@@ -79,7 +79,8 @@ def twin_run(
     hours: Annotated[float, typer.Option(help="simulated hours (capped at the trace length)")] = 24.0,
     controller: Annotated[str, typer.Option(help="static, g36, ppo, tree or llm")] = "static",
     policy: Annotated[Optional[str], typer.Option(help="policy file for ppo/tree/llm (default: the shipped one)")] = None,
-    wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb (LC-Opt's hardening: 15)")] = 15.0,
+    scenario: ScenarioOpt = "frontier",
+    wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb, on top of the scenario's")] = 0.0,
     pool_cells: Annotated[bool, typer.Option(help="ppo/tree: pool this system's tower cells into the count the "
                                              "policy was trained for")] = False,  # fmt: skip
     json_out: JsonOpt = None,
@@ -95,7 +96,7 @@ def twin_run(
         fail(f"`--hours` must be > 0, got {hours}")
     desc = load_system_or_fail(system)
     try:
-        tr = load_trace(trace, desc, wet_bulb_offset_k=wet_bulb_offset)
+        tr = load_trace(trace, desc, scenario=scenario, wet_bulb_offset_k=wet_bulb_offset)
         kwargs = {"policy": policy} if policy else {}
         if pool_cells:
             if controller not in ("ppo", "tree"):

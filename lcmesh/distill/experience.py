@@ -20,7 +20,7 @@ import numpy as np
 from lcmesh.twin.controllers.base import Controller, Observation
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.system import SystemDescription
-from lcmesh.twin.traces import load_trace
+from lcmesh.twin.traces import load_trace, scenario_with_offset
 
 OBS_KEYS = ("branch_temp_k", "branch_max_temp_k", "branch_power_w", "supply_temp_k", "secondary_flow_kg_s",
             "cabinet_dp_pa", "return_temp_k", "ct_leaving_temp_k", "cell_fan_power_w", "htw_supply_temp_k",
@@ -99,7 +99,7 @@ def collect_experience(
     done = 0
     with Plant(system) as plant:
         for spec in traces:
-            trace = load_trace(spec, system, wet_bulb_offset_k=wet_bulb_offset_k)
+            trace = load_trace(spec, system, scenario=scenario_with_offset("lcopt", wet_bulb_offset_k))
             steps = trace.n_steps if n_steps is None else min(n_steps, trace.n_steps)
             power = np.zeros(system.n_blade_groups)
             teacher.reset()

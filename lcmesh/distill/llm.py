@@ -88,7 +88,7 @@ def explanation_samples(
     if total == 0:
         return []
     rng = np.random.default_rng(seed)
-    trace = load_trace(trace_spec, system, wet_bulb_offset_k=wet_bulb_offset_k)
+    trace = load_trace(trace_spec, system, scenario=scenario_with_offset("lcopt", wet_bulb_offset_k))
     n_steps = min(n_steps, trace.n_steps)
     picks = sorted(rng.choice(np.arange(1, n_steps), size=total, replace=total > n_steps - 1).tolist())
     levels = [lvl for lvl, n in counts.items() for _ in range(n)]

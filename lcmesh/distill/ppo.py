@@ -172,7 +172,7 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     layout = FeatureLayout(plants.B, plants.m)
     steps_per_update = cfg.n_envs * cfg.episode_steps
     n_updates = max(1, cfg.total_env_steps // steps_per_update)
-    eval_traces = [load_trace(spec.strip(), system, wet_bulb_offset_k=15.0, hours=cfg.eval_hours)
+    eval_traces = [load_trace(spec.strip(), system, scenario="lcopt", hours=cfg.eval_hours)
                    for spec in cfg.eval_trace.split(",") if spec.strip()]  # fmt: skip
     eval_plant = Plant(system)
     log_path = out / "log.csv"

@@ -164,7 +164,10 @@ class MeshSettings(BaseSettings):
                                          "endpoints)")
     system: str = "lcopt-5"
     trace: str = "frontier-2024-04-07"
-    wet_bulb_offset_k: float = Field(15.0, ge=-50, le=50)
+    scenario: str = Field("frontier", description="how the trace drives the plant: frontier, design-day or lcopt "
+                          "(docs/traces.md, Scenarios)")
+    wet_bulb_offset_k: float = Field(0.0, ge=-50, le=50, description="K added to the wet bulb, on top of the "
+                                     "scenario's")
     speed_factor: float = Field(60.0, gt=0, le=100_000, description="simulated seconds per wall second")
     controller: str = "tree"
     valve_exercise_s: float = Field(0.0, ge=0, le=86_400, description="stroke each CDU primary valve this often "
@@ -186,6 +189,13 @@ class MeshSettings(BaseSettings):
     orchestration: OrchestrationConfig = OrchestrationConfig()
 
     _valve_exercise = field_validator("valve_exercise_s")(check_valve_exercise_s)
+
+    @field_validator("scenario")
+    @classmethod
+    def _known_scenario(cls, name: str) -> str:
+        from lcmesh.twin.traces import scenario_named
+
+        return scenario_named(name).name
 
     @field_validator("router_endpoints", "listen_endpoints", "router_peers", "bus_tls_hosts", mode="before")
     @classmethod

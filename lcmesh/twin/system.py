@@ -64,7 +64,9 @@ class BladeGroupParams(_Strict):
     conductance_flow_exponent: float = Field(ge=0, le=1.5, default=0.8)
     nominal_branch_flow_kg_s: float = Field(gt=0, default=5.67)
     heat_nonlinearity: float = Field(ge=0, default=0.015)
-    heat_unit_w: float = Field(gt=0, default=20e3, description="per branch; the paper's scaled unit")
+    heat_unit_w: float = Field(
+        gt=0, default=216.7e3, description="per branch; the paper's per-unit load (a third of a 650 kW CDU)"
+    )
     throttle_start_k: float = Field(default=358.15, description="blades start throttling their power (85 C)")
     shutdown_k: float = Field(default=378.15, description="throttled to zero: thermal shutdown (105 C)")
 
@@ -76,13 +78,13 @@ class BladeGroupParams(_Strict):
 
 
 class CduParams(_Strict):
-    hx_ua_sat_w_per_k: float = Field(gt=0, default=73.9e3)
+    hx_ua_sat_w_per_k: float = Field(gt=0, default=250e3)
     hx_ua_correction: float = Field(gt=0, default=1.6)
     hx_flow_sat_m3_s: float = Field(gt=0, default=0.0227)
     hx_secondary_volume_m3: float = Field(gt=0, default=0.255)
-    r_hx_secondary_pa_per_kg_s: float = Field(gt=0, default=11_000)
-    r_cabinet_pa_per_kg_s: float = Field(gt=0, default=11_000)
-    primary_flow_max_kg_s: float = Field(gt=0, default=15.0)
+    r_hx_secondary_pa_per_kg_s: float = Field(gt=0, default=1_800)
+    r_cabinet_pa_per_kg_s: float = Field(gt=0, default=4_700)
+    primary_flow_max_kg_s: float = Field(gt=0, default=45.0)
     valve_opening_min: float = Field(ge=0, lt=1, default=0.05)
     pump: PumpCurve = PumpCurve(
         head_m=(0.0, 38.5, 53.2, 62.4, 66.1, 68.0),
@@ -105,16 +107,18 @@ class CabinetGroup(_Strict):
     count: int = Field(ge=1, le=1000, description="C: CDU-cabinet pairs")
     branches: int = Field(ge=1, le=64, description="B: valve-controlled blade-group branches per cabinet")
     blade_groups_per_branch: int = Field(ge=1, le=10_000, default=1)
-    design_heat_w: float = Field(gt=0, default=225e3, description="mean IT load of a cabinet; traces are scaled to it")
+    design_heat_w: float = Field(
+        gt=0, default=650e3, description="mean IT load of a cabinet; traces are scaled to it (650 kW: unscaled)"
+    )
     coolant_volume_m3: float = Field(gt=0, default=0.083)
     blade_group: BladeGroupParams = BladeGroupParams()
     cdu: CduParams = CduParams()
 
 
 class CellParams(_Strict):
-    water_flow_kg_s: float = Field(gt=0, default=62.9)
-    fan_power_nominal_w: float = Field(gt=0, default=82e3)
-    design_heat_w: float = Field(gt=0, default=1.2e6, description="heat per cell at adj = 1")
+    water_flow_kg_s: float = Field(gt=0, default=50.0)
+    fan_power_nominal_w: float = Field(gt=0, default=37.3e3)
+    design_heat_w: float = Field(gt=0, default=1.338e6, description="heat per cell at adj = 1")
     free_convection_air_ratio: float = Field(ge=0, lt=1, default=0.1)
     york_wet_bulb_max_f: float = Field(default=70.0, description="clamp of the fit's wet-bulb argument")
     approach_min_k: float = Field(ge=0, default=0.3)
@@ -131,7 +135,9 @@ class TowerGroup(_Strict):
     ehx_ua_w_per_k: float = Field(gt=0, default=4.04e6, description="plate HX, one train per tower")
     basin_volume_m3: float = Field(gt=0, default=50.0)
     stage_up_speed: float = Field(gt=0, le=1, default=0.3)
-    stage_down_speed: float = Field(ge=0, lt=1, default=0.08)
+    stage_down_speed: float = Field(
+        ge=0, lt=1, default=0.0, description="0: cells once on stay on (their water keeps flowing; docs/twin.md)"
+    )
     stage_delay_s: float = Field(ge=0, default=300.0)
     lw_setpoint_k: float = Field(default=298.15, description="initial leaving-water setpoint")
 
@@ -189,7 +195,7 @@ class SystemDescription(_Strict):
             raise ValueError(f"the system has {self.n_blade_groups} blade groups; at most 200000 are supported")
         sub_dt = self.step_s / self.substeps
         cab = self.cabinets
-        worst_flow = 40.0  # kg/s: above any flow the CDU pump reaches
+        worst_flow = 60.0  # kg/s: above any flow the CDU pump reaches
         residence = 1000.0 * min(cab.coolant_volume_m3, cab.cdu.hx_secondary_volume_m3) / worst_flow
         if sub_dt >= residence:
             raise ValueError(

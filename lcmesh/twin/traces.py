@@ -63,9 +63,17 @@ _SHARE_RATIO = 25.0  # largest / smallest branch share of a base pattern (B = 3:
 _SHARE_JITTER_SIGMA = 0.1
 _ROTATION_PERIOD_S = (1800.0, 5400.0)
 _TRANSITION_S = 300.0
-_GROUP_SHARE_SIGMA = 0.3
+_GROUP_SHARE_SIGMA = 0.3  # the LC-Opt scenario's blade-group spread (chosen, not measured)
+# The data scenarios' blade-group spread: the median over the Frontier day of the standard deviation of
+# log(CDU load / mean CDU load) across its 25 columns (tests/twin/test_traces.py recomputes it).
+_DATA_GROUP_SHARE_SIGMA = 0.094
 # SeedSequence stream tags, so the draws of one purpose never shift those of another.
-_BRANCH_STREAM, _GROUP_STREAM, _COLUMN_SHIFT_STREAM = 1, 2, 3
+_BRANCH_STREAM, _GROUP_STREAM, _COLUMN_SHIFT_STREAM, _PROFILE_STREAM = 1, 2, 3, 4
+
+# Climatic design conditions (placeholders until cited; see docs/traces.md, "Design days").
+DESIGN_SOURCE = "ASHRAE Handbook-Fundamentals climatic design conditions"
+KNOXVILLE_EVAP_WB_C = {0.4: 24.6, 1.0: 24.0, 2.0: 23.4}
+KNOXVILLE_WB_RANGE_K = 3.9
 
 
 class TraceError(ValueError):
@@ -104,6 +112,25 @@ class LoadSkew:
 
 
 @dataclass(frozen=True, eq=False)
+class DataSkew:
+    """Branch shares taken from data: one (C, B) row of shares per trace step, plus static group shares."""
+
+    shares: np.ndarray  # (n_steps, C, B), rows sum to 1; step k holds time k * step_s
+    step_s: float
+    group_shares: np.ndarray  # (C*B, G), rows sum to 1
+
+    @property
+    def base_shares(self) -> np.ndarray:
+        """The shares at time 0, (C, B): the shape of the split (the same field as `LoadSkew`'s)."""
+        return self.shares[0]
+
+    def branch_shares(self, t_s: float | np.ndarray) -> np.ndarray:
+        """Shares (…, C, B) at time(s) ``t_s``: the row of the step that holds that time (held past the end)."""
+        rows = np.floor(np.asarray(t_s, dtype=np.float64) / self.step_s + 1e-9).astype(np.int64)
+        return self.shares[np.clip(rows, 0, self.shares.shape[0] - 1)]
+
+
+@dataclass(frozen=True, eq=False)
 class Trace:
     """Per-cabinet IT load and wet bulb on the system's step grid, plus the load skew."""
 
@@ -113,7 +140,8 @@ class Trace:
     wet_bulb_k: np.ndarray  # (n_steps,)
     branches: int
     blade_groups_per_branch: int
-    skew: LoadSkew
+    skew: LoadSkew | DataSkew
+    scenario: str = "frontier"
     start_s: float = 0.0  # time of step 0 on the skew schedule (non-zero for slices)
     _n_blade_groups: int = field(init=False, repr=False)
 
@@ -183,20 +211,125 @@ def trace_split(kind: Literal["train", "eval"]) -> list[str]:
     raise ValueError(f"`kind` must be 'train' or 'eval', got {kind!r}")
 
 
+@dataclass(frozen=True)
+class Scenario:
+    """How a trace's data becomes the twin's inputs: weather, load scale and the spread over branches.
+
+    ``branch_spread`` "data": each branch follows the time profile of another CDU column of the trace
+    (docs/traces.md); "lcopt": LC-Opt's seeded 25:1 rotating pattern. ``design_day``: replace the
+    trace's wet bulb by the design-day profile of that name (`DESIGN_DAYS`).
+    """
+
+    name: str
+    description: str
+    branch_spread: Literal["data", "lcopt"] = "data"
+    wet_bulb_offset_k: float = 0.0
+    load_scale: float = 1.0
+    design_day: str | None = None
+
+
+@dataclass(frozen=True)
+class DesignDay:
+    """A design day's wet bulb: its peak and its daily range, shaped by ASHRAE's hourly fractions."""
+
+    name: str
+    peak_wet_bulb_c: float
+    daily_range_k: float
+    source: str
+
+    def wet_bulb_c(self, time_s: np.ndarray) -> np.ndarray:
+        """Wet bulb (deg C) at ``time_s`` (s from midnight, local solar time), interpolated between hours."""
+        hours = np.asarray(time_s, dtype=np.float64) / 3600.0
+        # the fractions are for the hour ending at 1..24; hour 24 is also hour 0 of the next day
+        knots_h = np.arange(0.0, 25.0)
+        fractions = np.concatenate(([_DAILY_RANGE_FRACTION[-1]], _DAILY_RANGE_FRACTION))
+        frac = np.interp(hours % 24.0, knots_h, fractions)
+        return self.peak_wet_bulb_c - frac * self.daily_range_k
+
+
+# ASHRAE Handbook-Fundamentals (2009, ch. 14, table 6; unchanged since): the fraction of the daily
+# range below the peak, for the hours ending 01:00 .. 24:00. 0 at 14-15 h, 1 at 05 h.
+_DAILY_RANGE_FRACTION = np.array([
+    0.88, 0.92, 0.95, 0.98, 1.00, 0.98, 0.91, 0.74, 0.55, 0.38, 0.23, 0.13,
+    0.05, 0.00, 0.00, 0.06, 0.14, 0.24, 0.39, 0.50, 0.59, 0.68, 0.75, 0.82,
+])  # fmt: skip
+_DAILY_RANGE_FRACTION.setflags(write=False)
+
+KNOXVILLE = "Knoxville McGhee Tyson Airport, TN (WMO 723260), 11 miles from ORNL"
+DESIGN_DAYS = {
+    d.name: d
+    for d in (
+        DesignDay("knoxville-0.4", KNOXVILLE_EVAP_WB_C[0.4], KNOXVILLE_WB_RANGE_K, f"{KNOXVILLE}: {DESIGN_SOURCE}"),
+        DesignDay("knoxville-1", KNOXVILLE_EVAP_WB_C[1.0], KNOXVILLE_WB_RANGE_K, f"{KNOXVILLE}: {DESIGN_SOURCE}"),
+        DesignDay("knoxville-2", KNOXVILLE_EVAP_WB_C[2.0], KNOXVILLE_WB_RANGE_K, f"{KNOXVILLE}: {DESIGN_SOURCE}"),
+    )
+}
+
+LCOPT_LOAD_W = 225e3  # the mean cabinet load LC-Opt-scale runs use (docs/twin.md, "The LC-Opt scenario")
+DEFAULT_SCENARIO = "frontier"
+SCENARIOS = {
+    s.name: s
+    for s in (
+        Scenario("frontier", "the trace as recorded: real CDU loads, real wet bulb, branch spread from the data"),
+        Scenario(
+            "design-day",
+            "the trace's loads under the 0.4 % evaporation design wet bulb of Knoxville, TN, with its daily range",
+            design_day="knoxville-0.4",
+        ),
+        Scenario(
+            "lcopt",
+            "LC-Opt's hardening, for comparison with its Table 3: wet bulb +15 K, a 25:1 rotating branch skew,"
+            f" loads scaled to a {LCOPT_LOAD_W / 1e3:.0f} kW mean per cabinet",
+            branch_spread="lcopt",
+            wet_bulb_offset_k=15.0,
+            load_scale=LCOPT_LOAD_W / FRONTIER_MEAN_CDU_LOAD_W,
+        ),
+    )
+}
+
+
+def scenario_with_offset(name: str, wet_bulb_offset_k: float) -> Scenario:
+    """The named scenario with its wet-bulb offset replaced (training configs that record the offset themselves)."""
+    return replace(scenario_named(name), wet_bulb_offset_k=wet_bulb_offset_k)
+
+
+def scenario_named(name: str | Scenario) -> Scenario:
+    """The named scenario; an unknown name gets the known ones and the closest match."""
+    if isinstance(name, Scenario):
+        return name
+    if name in SCENARIOS:
+        return SCENARIOS[name]
+    close = difflib.get_close_matches(str(name), list(SCENARIOS), n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    raise TraceError(f"unknown scenario {name!r}{hint} (known: {', '.join(SCENARIOS)})")
+
+
 def load_trace(
-    spec: str, system: SystemDescription, *, wet_bulb_offset_k: float = 0.0, hours: float | None = None
+    spec: str,
+    system: SystemDescription,
+    *,
+    scenario: str | Scenario = DEFAULT_SCENARIO,
+    wet_bulb_offset_k: float = 0.0,
+    hours: float | None = None,
 ) -> Trace:
-    """Load ``"frontier-2024-04-07"``, ``"synthetic:SEED"`` or a CSV path for ``system``."""
+    """Load ``"frontier-2024-04-07"``, ``"synthetic:SEED"`` or a CSV path for ``system`` under ``scenario``.
+
+    ``wet_bulb_offset_k`` is added on top of the scenario's own offset.
+    """
+    scen = scenario_named(scenario)
     if hours is not None and not (hours > 0 and math.isfinite(hours)):
         raise TraceError(f"`hours` must be a positive number, got {hours}")
     if not math.isfinite(wet_bulb_offset_k):
         raise TraceError(f"`wet_bulb_offset_k` must be a finite number of kelvin, got {wet_bulb_offset_k}")
     spec = str(spec)
     trace_seed: int | None = None
+    cab = system.cabinets
     if spec.startswith("synthetic:"):
         trace_seed = _parse_seed(spec)
         n_steps = _hours_to_steps(24.0 if hours is None else hours, system.step_s)
         load_w, wet_bulb_c = _synthetic(trace_seed, system, n_steps)
+        # the branches' profiles: the same job model for C*B racks of a third of the load each
+        profiles = _synthetic_profiles(trace_seed, system, n_steps) if scen.branch_spread == "data" else None
         name = f"synthetic:{trace_seed}"
     else:
         if spec == FRONTIER_DAY:
@@ -204,18 +337,26 @@ def load_trace(
         else:
             time_s, power_w, wet_bulb_c = _read_csv(_user_path(spec))
         power_w, wet_bulb_c = _resample(time_s, power_w, wet_bulb_c, system.step_s, spec)
-        power_w = _columns_to_cabinets(power_w, system)
         if hours is not None:
             n_steps = _hours_to_steps(hours, system.step_s)
             if n_steps > len(wet_bulb_c):
                 held_h = len(wet_bulb_c) * system.step_s / 3600
                 raise TraceError(f"trace {spec!r} holds {held_h:.2f} h, asked for {hours} h")
             power_w, wet_bulb_c = power_w[:n_steps], wet_bulb_c[:n_steps]
-        load_w, name = power_w * (system.cabinets.design_heat_w / FRONTIER_MEAN_CDU_LOAD_W), spec
-    wet_bulb_k = wet_bulb_c + KELVIN_OFFSET + wet_bulb_offset_k
+        profiles = _column_profiles(power_w, system) if scen.branch_spread == "data" else None
+        power_w = _columns_to_cabinets(power_w, system)
+        load_w, name = power_w * (cab.design_heat_w / FRONTIER_MEAN_CDU_LOAD_W), spec
+    load_w = load_w * scen.load_scale
+    if scen.design_day is not None:
+        wet_bulb_c = DESIGN_DAYS[scen.design_day].wet_bulb_c(system.step_s * np.arange(len(wet_bulb_c)))
+    wet_bulb_k = wet_bulb_c + KELVIN_OFFSET + scen.wet_bulb_offset_k + wet_bulb_offset_k
     for a in (load_w, wet_bulb_k):
         a.setflags(write=False)
-    cab = system.cabinets
+    if profiles is None:
+        skew: LoadSkew | DataSkew = _make_skew(system, trace_seed)
+    else:
+        skew = DataSkew(shares=_shares_from_profiles(profiles, cab.branches), step_s=system.step_s,
+                        group_shares=_group_shares(system, _DATA_GROUP_SHARE_SIGMA))  # fmt: skip
     return Trace(
         name=name,
         step_s=system.step_s,
@@ -223,7 +364,8 @@ def load_trace(
         wet_bulb_k=wet_bulb_k,
         branches=cab.branches,
         blade_groups_per_branch=cab.blade_groups_per_branch,
-        skew=_make_skew(system, trace_seed),
+        skew=skew,
+        scenario=scen.name,
     )
 
 
@@ -377,12 +519,50 @@ def _make_skew(system: SystemDescription, trace_seed: int | None) -> LoadSkew:
     base = rng.permuted(base / base.sum(axis=1, keepdims=True), axis=1)
     period_s = rng.uniform(*_ROTATION_PERIOD_S, size=n_cab)
     phase_s = rng.uniform(0.0, 1.0, size=n_cab) * period_s
-    grp_rng = _stream(system.load_skew_seed, _GROUP_STREAM)
-    groups = grp_rng.lognormal(0.0, _GROUP_SHARE_SIGMA, size=(n_cab * n_br, n_grp))
-    groups /= groups.sum(axis=1, keepdims=True)
-    for a in (base, period_s, phase_s, groups):
+    groups = _group_shares(system, _GROUP_SHARE_SIGMA)
+    for a in (base, period_s, phase_s):
         a.setflags(write=False)
     return LoadSkew(base_shares=base, period_s=period_s, phase_s=phase_s, group_shares=groups)
+
+
+def _group_shares(system: SystemDescription, sigma: float) -> np.ndarray:
+    """Static lognormal shares of each branch's load over its blade groups, (C*B, G), rows sum to 1."""
+    cab = system.cabinets
+    rng = _stream(system.load_skew_seed, _GROUP_STREAM)
+    groups = rng.lognormal(0.0, sigma, size=(cab.count * cab.branches, cab.blade_groups_per_branch))
+    groups /= groups.sum(axis=1, keepdims=True)
+    groups.setflags(write=False)
+    return groups
+
+
+def _column_profiles(power_w: np.ndarray, system: SystemDescription) -> np.ndarray:
+    """(n, C*B) load profiles for the branches: branch j of cabinet i follows column (i*B + j) mod K."""
+    n_cols = power_w.shape[1]
+    return power_w[:, np.arange(system.n_branches) % n_cols]
+
+
+def _synthetic_profiles(seed: int, system: SystemDescription, n_steps: int) -> np.ndarray:
+    """(n, C*B) branch profiles for a synthetic trace: the shipped day's CDU columns, drawn by seed.
+
+    The spread between branches is the data's: every branch takes a seeded column, all from the same
+    seeded time of day (the columns move together, so one shift for all keeps their co-movement).
+    """
+    time_s, power_w, wet_bulb_c = _read_shipped_day()
+    day, _ = _resample(time_s, power_w, wet_bulb_c, system.step_s, FRONTIER_DAY)
+    rng = _stream(seed, _PROFILE_STREAM)
+    cols = rng.integers(0, day.shape[1], size=system.n_branches)
+    rows = (np.arange(n_steps) + rng.integers(0, day.shape[0])) % day.shape[0]
+    return day[rows[:, None], cols[None, :]]
+
+
+def _shares_from_profiles(profiles: np.ndarray, n_branches: int) -> np.ndarray:
+    """Each cabinet's branch shares at every step: its B profiles normalized to sum to 1 (equal if all 0)."""
+    n = profiles.shape[0]
+    grouped = profiles.reshape(n, -1, n_branches)
+    total = grouped.sum(axis=2, keepdims=True)
+    shares = np.divide(grouped, total, out=np.full_like(grouped, 1.0 / n_branches), where=total > 0)
+    shares.setflags(write=False)
+    return shares
 
 
 # Synthetic workload: fractions of design_heat_w, times in seconds.
@@ -403,7 +583,14 @@ _WARMUP_S = 6 * 3600.0  # jobs start before t = 0 so the trace does not open emp
 def _synthetic(seed: int, system: SystemDescription, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Seeded job-based cabinet loads (W) and diurnal wet bulb (deg C)."""
     rng = np.random.Generator(np.random.PCG64(seed))
-    n_cab, step_s = system.n_cabinets, system.step_s
+    load, wet_bulb_c = _synthetic_series(rng, system.n_cabinets, system.step_s, n_steps)
+    return load * system.cabinets.design_heat_w, wet_bulb_c
+
+
+def _synthetic_series(
+    rng: np.random.Generator, n_cab: int, step_s: float, n_steps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Job-based loads in units of the mean load, (n_steps, n_cab), and diurnal wet bulb (deg C)."""
     duration_s = n_steps * step_s
     load = np.broadcast_to(rng.uniform(*_IDLE_LEVEL, size=n_cab), (n_steps, n_cab)).copy()
 
@@ -425,7 +612,7 @@ def _synthetic(seed: int, system: SystemDescription, n_steps: int) -> tuple[np.n
         cabs = rng.choice(n_cab, size=max(1, round(rng.uniform(0.3, 1.0) * n_cab)), replace=False)
         load[window, cabs] = np.maximum(load[window, cabs], rng.uniform(*_BURST_LEVEL))
     load *= 1.0 + 0.02 * rng.standard_normal(load.shape)
-    load_w = np.clip(load, *_LOAD_CLIP) * _PEAK_OVER_MEAN * system.cabinets.design_heat_w
+    load_w = np.clip(load, *_LOAD_CLIP) * _PEAK_OVER_MEAN
 
     hour = np.arange(n_steps) * (step_s / 3600.0)
     mean_c, amplitude_k, coldest_h = rng.uniform(2.0, 20.0), rng.uniform(2.0, 5.0), rng.uniform(5.0, 7.0)

@@ -1,7 +1,8 @@
 """Physics checks of a twin (``lcmesh twin validate``); the tests assert the same checks.
 
-Each check returns ``{"name", "passed", "criterion", ...measured values}``. Steady states come
-from holding inputs constant for `settle_h` simulated hours from a saved state.
+Each check returns ``{"name", "passed", "criterion", ...measured values}``; the checks against published
+Frontier figures also carry ``"source"``. Steady states come from holding inputs constant for `settle_h`
+simulated hours from a saved state. Sources and why each range is what it is: docs/twin.md, "Validation".
 """
 
 from __future__ import annotations
@@ -11,14 +12,27 @@ from pathlib import Path
 
 import numpy as np
 
+from lcmesh.twin.controllers.g36 import G36Controller
 from lcmesh.twin.controllers.static import StaticController
 from lcmesh.twin.plant import Plant, PlantAction
 from lcmesh.twin.run import plot_run, run_twin
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription
-from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+from lcmesh.twin.traces import FRONTIER_DAY, FRONTIER_MEAN_CDU_LOAD_W, load_trace
 
 _K = 273.15
 WET_BULB_K = 288.15  # 15 C: a mild day, so setpoint changes are reachable
+GPM_PER_KG_S = 15.850 / 0.997  # US gallons per minute of water at 997 kg/m^3
+FRONTIER_CDUS = 25
+
+# Published Frontier figures the twin is checked against (docs/twin.md, "Validation", has the sources).
+PUE_RANGE = (1.03, 1.06)  # ORNL/OLCF, as quoted: 1.03 and "1.05-1.06 annualized"
+RAPS_CDU_PUMP_W = 8473.47  # ExaDigiT RAPS config/frontier.yaml, power_cdu
+CDU_PUMP_RATIO_RANGE = (2 / 3, 1.5)
+FACILITY_FLOW_GPM = 6000.0  # Bloomberg, 2023-01-05: "about 6,000 gallons per minute"
+FACILITY_FLOW_RATIO_RANGE = (0.5, 2.0)
+SUPPLY_RANGE_C = (27.0, 32.0)  # launch coverage: "about 85 F" (29.4 C); 32 C in secondary notes
+RETURN_RANGE_C = (30.0, 38.0)  # Sun et al., Scientific Data 11:1077 (2024): waste heat at 30-38 C
+IN_BAND_MIN_PCT = 99.0
 
 
 def validate_twin(system: SystemDescription, *, plot_dir: Path | None = None, settle_h: float = 3.0) -> dict:
@@ -31,7 +45,91 @@ def validate_twin(system: SystemDescription, *, plot_dir: Path | None = None, se
     with Plant(system) as plant:
         for check in checks:
             results.append(check(plant, settle_h=settle_h, plot_dir=plot_dir))
+        if _real_scale(system):
+            real_day = _day_under_g36(plant, "frontier")
+            design_day = _day_under_g36(plant, "design-day")
+            results += published_checks(system, real_day, design_day)
+        else:
+            results.append({"name": "published_figures", "passed": True, "skipped": True,
+                            "criterion": "only for systems carrying the traces' real CDU loads (design_heat_w 650 kW)"})  # fmt: skip
     return {"system": system.name, "passed": all(r["passed"] for r in results), "checks": results}
+
+
+def _real_scale(system: SystemDescription) -> bool:
+    return abs(system.cabinets.design_heat_w - FRONTIER_MEAN_CDU_LOAD_W) < 1.0
+
+
+def _day_under_g36(plant: Plant, scenario: str) -> dict:
+    """Day means of what the published figures describe, G36 controlling the Frontier day under `scenario`."""
+    trace = load_trace(FRONTIER_DAY, plant.system, scenario=scenario)
+    sums = dict.fromkeys(("it", "cooling", "cdu_pump", "htw_flow", "htw_supply", "htw_return", "fan"), 0.0)
+    fan_peak = 0.0
+
+    def record(_: int) -> None:
+        nonlocal fan_peak
+        out = plant.out
+        sums["it"] += float(out["it_power_w"])
+        sums["cooling"] += float(out["pump_power_w"]) + float(out["ct_fan_power_w"])
+        sums["cdu_pump"] += float(out["cdu_pump_power_w"].mean())
+        sums["htw_flow"] += float(out["htw_flow_kg_s"])
+        sums["htw_supply"] += float(out["htw_supply_temp_k"]) - _K
+        sums["htw_return"] += float(out["htw_return_temp_k"]) - _K
+        sums["fan"] += float(out["ct_fan_power_w"])
+        fan_peak = max(fan_peak, float(out["ct_fan_power_w"]))
+
+    result = run_twin(plant, trace, G36Controller(plant.system), record_every=40, on_step=record)
+    n = result.kpi["steps"]
+    means = {k: v / n for k, v in sums.items()}
+    installed_fan_w = plant.system.n_cells * plant.system.towers.cell.fan_power_nominal_w
+    return {
+        "scenario": scenario,
+        "d_blade_pct": result.kpi["d_blade_pct"],
+        "cooling_pue": 1.0 + sums["cooling"] / sums["it"],
+        "it_mw": means["it"] / 1e6,
+        "cdu_pump_kw_per_cdu": means["cdu_pump"] / 1e3,
+        "facility_flow_gpm_at_25_cdus": means["htw_flow"] * GPM_PER_KG_S * FRONTIER_CDUS / plant.system.n_cabinets,
+        "htw_supply_c": means["htw_supply"],
+        "htw_return_c": means["htw_return"],
+        "fan_peak_pct_of_installed": 100.0 * fan_peak / installed_fan_w,
+    }
+
+
+def _within(value: float, bounds: tuple[float, float]) -> bool:
+    return bounds[0] <= value <= bounds[1]
+
+
+def published_checks(system: SystemDescription, real_day: dict, design_day: dict) -> list[dict]:
+    """The twin against published Frontier figures: G36 on the Frontier day, as recorded and on a design day."""
+    pump_ratio = real_day["cdu_pump_kw_per_cdu"] * 1e3 / RAPS_CDU_PUMP_W
+    flow_ratio = real_day["facility_flow_gpm_at_25_cdus"] / FACILITY_FLOW_GPM
+    return [
+        {"name": "cooling_pue", "source": "ORNL/OLCF via HPCwire and launch coverage (docs/twin.md)",
+         "criterion": f"G36 on the Frontier day: (IT + pumps + tower fans) / IT within {PUE_RANGE[0]}-{PUE_RANGE[1]}",
+         "measured": real_day["cooling_pue"], "passed": _within(real_day["cooling_pue"], PUE_RANGE)},
+        {"name": "cdu_pump_power", "source": "ExaDigiT RAPS config/frontier.yaml, power_cdu = 8,473.47 W",
+         "criterion": "G36 on the Frontier day: mean CDU pump power per CDU within 2/3-1.5x of 8.47 kW",
+         "measured_kw": real_day["cdu_pump_kw_per_cdu"], "ratio": pump_ratio,
+         "passed": _within(pump_ratio, CDU_PUMP_RATIO_RANGE)},
+        {"name": "facility_flow", "source": "Bloomberg, 2023-01-05 (about 6,000 gpm; the loop is not named)",
+         "criterion": "G36 on the Frontier day: mean hot-water flow, scaled to 25 CDUs, within 0.5-2x of 6,000 gpm",
+         "measured_gpm": real_day["facility_flow_gpm_at_25_cdus"], "ratio": flow_ratio,
+         "passed": _within(flow_ratio, FACILITY_FLOW_RATIO_RANGE)},
+        {"name": "facility_temperatures", "source": "launch coverage (about 85 F supply); Sun et al. 2024 (30-38 C)",
+         "criterion": f"G36 on the design day: mean HTW supply within {SUPPLY_RANGE_C[0]}-{SUPPLY_RANGE_C[1]} C "
+                      f"and return within {RETURN_RANGE_C[0]}-{RETURN_RANGE_C[1]} C",
+         "supply_c": design_day["htw_supply_c"], "return_c": design_day["htw_return_c"],
+         "passed": _within(design_day["htw_supply_c"], SUPPLY_RANGE_C)
+         and _within(design_day["htw_return_c"], RETURN_RANGE_C)},
+        {"name": "g36_in_band", "source": "issue target; the design day: ASHRAE climatic design conditions",
+         "criterion": f"G36 keeps >= {IN_BAND_MIN_PCT} % of blade-group steps in 20-40 C on the Frontier day and "
+                      "on the 0.4 % design day, with tower fans below their installed power",
+         "real_day_pct": real_day["d_blade_pct"], "design_day_pct": design_day["d_blade_pct"],
+         "design_day_fan_peak_pct": design_day["fan_peak_pct_of_installed"],
+         "passed": real_day["d_blade_pct"] >= IN_BAND_MIN_PCT and design_day["d_blade_pct"] >= IN_BAND_MIN_PCT
+         and design_day["fan_peak_pct_of_installed"] < 100.0},
+        {"name": "day_figures", "passed": True, "criterion": "reported, not checked",
+         "real_day": real_day, "design_day": design_day},
+    ]  # fmt: skip
 
 
 def _uniform_branch_load(plant: Plant, branch_w: float) -> np.ndarray:
@@ -53,7 +151,7 @@ def _static_action(plant: Plant, wet_bulb_k: float = WET_BULB_K) -> PlantAction:
 
 def check_energy_balance(plant: Plant, *, plot_dir: Path | None = None, **_) -> dict:
     """Heat in = rejected + recovered + stored change, within 0.5 % over the Frontier day."""
-    trace = load_trace(FRONTIER_DAY, plant.system, wet_bulb_offset_k=15.0)
+    trace = load_trace(FRONTIER_DAY, plant.system)
     result = run_twin(plant, trace, StaticController(plant.system), record_every=4)
     if plot_dir is not None:
         plot_run(result, Path(plot_dir) / f"validate-day-{plant.system.name}.png")
@@ -68,40 +166,42 @@ def check_energy_balance(plant: Plant, *, plot_dir: Path | None = None, **_) -> 
 
 
 def check_blade_band(plant: Plant, *, settle_h: float, **_) -> dict:
-    """At nominal flow, blade temperatures for 5-47 kW per branch stay in the LC-Opt twin's 24-37 C.
+    """At the design dp and supply setpoint, blades stay in the 20-40 C band over the real range of branch loads.
 
-    With no load at all nothing heats the coolant, so an idle branch settles at the coolant supply
-    temperature (which then drifts below the setpoint towards the HTW supply): checked separately.
+    The range: 0.1 to 1.65 times the design branch load (a third of `design_heat_w`: 217 kW on the
+    reference systems), covering the Frontier day's 1st-99th percentile CDU loads. With no load at all
+    nothing heats the coolant, so an idle branch settles at the coolant supply: checked separately.
     """
     start = plant.save_state()
     action = _static_action(plant)
+    design_branch_w = plant.system.cabinets.design_heat_w / plant.system.cabinets.branches
     rows = []
-    for kw in (0.0, 5.0, 10.0, 20.0, 30.0, 40.0, 47.0):
+    for fraction in (0.0, 0.05, 0.1, 0.3, 0.6, 1.0, 1.3, 1.65):
         plant.restore_state(start)
-        out = _settle(plant, _uniform_branch_load(plant, kw * 1e3), action, settle_h)
-        rows.append({"branch_kw": kw, "min_c": float(out["blade_temp_k"].min() - _K),
+        out = _settle(plant, _uniform_branch_load(plant, fraction * design_branch_w), action, settle_h)
+        rows.append({"branch_kw": fraction * design_branch_w / 1e3, "min_c": float(out["blade_temp_k"].min() - _K),
                      "max_c": float(out["blade_temp_k"].max() - _K),
                      "supply_c": float(out["supply_temp_k"].mean() - _K),
                      "flow_kg_s": float(out["secondary_flow_kg_s"].mean())})  # fmt: skip
     plant.restore_state(start)
     plant.free_state(start)
-    held = [r for r in rows if r["branch_kw"] >= 10.0]
-    light = [r for r in rows if r["branch_kw"] < 10.0]
+    held = [r for r in rows if r["branch_kw"] >= 0.1 * design_branch_w / 1e3 - 1e-9]
+    light = [r for r in rows if r["branch_kw"] < 0.1 * design_branch_w / 1e3 - 1e-9]
     lo, hi = min(r["min_c"] for r in held), max(r["max_c"] for r in held)
     return {
         "name": "blade_band",
         "criterion": (
-            "10-47 kW per branch: blades within 24-37 C; below 10 kW the supply falls under its setpoint "
-            "(the minimum valve opening out-cools the load): blades no colder than their coolant and <= 37 C"
+            "0.1-1.65x the design branch load at the design dp and supply setpoint: blades within 20-40 C; "
+            "below that the supply may fall under its setpoint: blades no colder than their coolant and < 40 C"
         ),
         "rows": rows,
-        "passed": 24.0 <= lo and hi <= 37.0 and all(r["supply_c"] - 0.01 <= r["min_c"] <= 37.0 for r in light),
+        "passed": 20.0 < lo and hi < 40.0 and all(r["supply_c"] - 0.01 <= r["min_c"] < 40.0 for r in light),
     }
 
 
 def check_setpoint_step(plant: Plant, *, settle_h: float, plot_dir: Path | None = None, **_) -> dict:
-    """A -2 K supply-setpoint step on cabinet 1 settles in minutes (63 % within 0.5-30 min)."""
-    power = _uniform_branch_load(plant, 100e3)
+    """A -2 K supply-setpoint step on cabinet 1 settles within minutes (63 % within 0.1-30 min)."""
+    power = _uniform_branch_load(plant, plant.system.cabinets.design_heat_w / plant.system.cabinets.branches)
     action = _static_action(plant)
     start = plant.save_state()
     out = _settle(plant, power, action, settle_h)
@@ -128,13 +228,13 @@ def check_setpoint_step(plant: Plant, *, settle_h: float, plot_dir: Path | None 
         _plot_step(np.arange(1, n + 1) * plant.step_s / 60.0, trace, supply, before, Path(plot_dir))
     return {
         "name": "setpoint_step",
-        "criterion": "return temperature: 63 % of the change within 0.5-30 min, gain 0.5-1.5 K/K",
+        "criterion": "return temperature: 63 % of the change within 0.1-30 min, gain 0.5-1.5 K/K",
         "return_change_k": float(change),
         "gain_k_per_k": float(-change / 2.0),
         "t63_min": t63_min,
         "settle_10pct_min": settle_min,
         "coupling_other_cdus_k": coupling,
-        "passed": t63_min is not None and 0.5 <= t63_min <= 30.0 and 0.5 <= -change / 2.0 <= 1.5,
+        "passed": t63_min is not None and 0.1 <= t63_min <= 30.0 and 0.5 <= -change / 2.0 <= 1.5,
     }
 
 
@@ -159,7 +259,10 @@ def _monotonic(plant: Plant, settle_h: float, field: str, values: list[float], n
     start = plant.save_state()
     worst = -np.inf
     rows = []
-    for branch_kw in (20.0, 150.0, 300.0):
+    # half to 1.5x the design branch load: lighter loads hold the primary valve at its minimum opening, where
+    # more secondary flow through the out-cooling exchanger warms the supply (physical, and not the point here)
+    design_branch_kw = plant.system.cabinets.design_heat_w / plant.system.cabinets.branches / 1e3
+    for branch_kw in (0.5 * design_branch_kw, design_branch_kw, 1.5 * design_branch_kw):
         power = _uniform_branch_load(plant, branch_kw * 1e3)
         previous = None
         for value in values:
@@ -172,12 +275,15 @@ def _monotonic(plant: Plant, settle_h: float, field: str, values: list[float], n
             previous = temps
     plant.restore_state(start)
     plant.free_state(start)
+    # the supply loop may settle anywhere inside its deadband, so two steady states differ by up to that much
+    tolerance_k = plant.system.cabinets.cdu.temp_deadband_k
     return {
         "name": name,
-        "criterion": f"{sweep}: no blade group warmer at steady state (tolerance 0.01 K)",
+        "criterion": f"{sweep}: no blade group warmer at steady state (tolerance: the supply loop's "
+        f"{tolerance_k} K deadband)",
         "largest_rise_k": worst,
         "rows": rows,
-        "passed": worst <= 0.01,
+        "passed": worst <= tolerance_k,
     }
 
 

@@ -69,7 +69,7 @@ def test_lwt_limits():
 
 def test_g36_controller_responds_to_hot_cabinets(plant):
     g36 = make_controller("g36", plant.system)
-    hot = np.full(15, 320e3)
+    hot = np.full(15, 2.5 * plant.system.cabinets.design_heat_w / 3)  # 2.5x the design branch load
     action = plant.default_action()
     for _ in range(40):  # heat the plant up
         out = plant.step(hot, 291.15, action)

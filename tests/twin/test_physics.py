@@ -18,8 +18,10 @@ def test_lcopt5_passes_every_validation_check(lcopt5, tmp_path):
     assert report["passed"], f"failed checks: {failed}"
     checks = {c["name"]: c for c in report["checks"]}
     assert abs(checks["energy_balance"]["energy_balance_error_pct"]) < 0.5
-    # a 2 K setpoint step settles in minutes: not seconds, not hours (frontier-cooling-physics.md: 6-9 min)
+    # a 2 K setpoint step settles within minutes, not hours (LC-Opt's twin: 6-9 min; ours is faster, docs/twin.md)
     assert 0.5 <= checks["setpoint_step"]["t63_min"] <= 30
+    published = [c for c in report["checks"] if "source" in c]
+    assert len(published) >= 5 and all(c["passed"] for c in published)
     assert (tmp_path / "validate-setpoint-step.png").stat().st_size > 10_000
 
 
@@ -41,7 +43,8 @@ def _settle(plant: Plant, hours: float, branch_w: float = 150e3, wet_bulb_k: flo
 def test_pump_degradation_cuts_flow_and_warms_blades(plant):
     base = _settle(plant, 1.0)
     flow0, hot0 = base["secondary_flow_kg_s"][0], base["blade_temp_k"][:3].max()
-    plant.set_faults(pump_degradation=[0.5, 0, 0, 0, 0])
+    # the pumps run near 70 % speed at the design dp, so a 50 % head loss is made up by speeding up: take 70 %
+    plant.set_faults(pump_degradation=[0.7, 0, 0, 0, 0])
     out = _settle(plant, 1.0)
     assert out["secondary_flow_kg_s"][0] < 0.9 * flow0
     assert out["blade_temp_k"][:3].max() > hot0 + 0.5

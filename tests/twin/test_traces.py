@@ -113,14 +113,48 @@ def test_blade_powers_sum_to_cabinet_load(frontier_full, spec):
 
 
 def test_blade_groups_within_a_branch_are_skewed(frontier_full):
-    trace = load_trace(FRONTIER_DAY, frontier_full)
-    blades = trace.blade_power_w(100).reshape(25 * 3, 133)
-    spread = blades.max(axis=1) / blades.min(axis=1)
-    assert (spread > 1.5).all()  # lognormal sigma 0.3 over 133 groups: max/min is about 4-7
+    data = load_trace(FRONTIER_DAY, frontier_full).blade_power_w(100).reshape(25 * 3, 133)
+    lcopt = load_trace(FRONTIER_DAY, frontier_full, scenario="lcopt").blade_power_w(100).reshape(25 * 3, 133)
+    assert (data.max(axis=1) / data.min(axis=1) > 1.2).all()  # lognormal sigma 0.094 over 133 groups: about 1.6
+    assert (lcopt.max(axis=1) / lcopt.min(axis=1) > 1.5).all()  # sigma 0.3: about 4-7
 
 
-def test_branch_shares_differ_and_rotate(lcopt5):
+def test_group_spread_is_the_datas_spread_between_cdus():
+    raw = np.loadtxt(SHIPPED_CSV, delimiter=",", skiprows=1)[:, 1:26]
+    log_ratio = np.log(raw / raw.mean(axis=1, keepdims=True))
+    assert np.median(log_ratio.std(axis=1)) == pytest.approx(traces._DATA_GROUP_SHARE_SIGMA, abs=0.001)
+
+
+def test_default_scenario_carries_the_real_loads_and_weather(lcopt5):
     trace = load_trace(FRONTIER_DAY, lcopt5)
+    raw = np.loadtxt(SHIPPED_CSV, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(trace.cabinet_load_w, raw[:-1, 1:6], rtol=1e-12)  # watts as recorded
+    np.testing.assert_allclose(trace.wet_bulb_k, raw[:-1, 26] + 273.15, rtol=0, atol=1e-9)
+    assert trace.scenario == "frontier"
+
+
+def test_data_branch_shares_follow_other_cdu_columns(lcopt5):
+    trace = load_trace(FRONTIER_DAY, lcopt5)
+    raw = np.loadtxt(SHIPPED_CSV, delimiter=",", skiprows=1)[:-1, 1:26]
+    shares = trace.branch_shares(np.arange(trace.n_steps))
+    columns = raw[:, :15].reshape(-1, 5, 3)  # branch j of cabinet i follows column 3 i + j
+    np.testing.assert_allclose(shares, columns / columns.sum(axis=2, keepdims=True), rtol=1e-12)
+    spread = shares.max(axis=2) - shares.min(axis=2)
+    assert 0.005 < np.median(spread) < 0.1  # the CDUs move together: branches differ by a few percent
+    assert spread.max() > 0.1  # cabinet 5 holds power[14], the day's low column
+
+
+def test_synthetic_branch_shares_come_from_the_data(lcopt5):
+    day = load_trace(FRONTIER_DAY, lcopt5).branch_shares(np.arange(5760))
+    for seed in (3, 4):
+        shares = load_trace(f"synthetic:{seed}", lcopt5).branch_shares(np.arange(5760))
+        np.testing.assert_allclose(shares.sum(axis=2), 1.0, rtol=1e-12)
+        assert day.min() - 0.1 < shares.min() and shares.max() < day.max() + 0.1
+        assert not np.allclose(shares, day)
+
+
+def test_lcopt_branch_shares_differ_and_rotate(lcopt5):
+    trace = load_trace(FRONTIER_DAY, lcopt5, scenario="lcopt")
     shares = np.stack([trace.branch_power_w(k) / trace.cabinet_load_w[k][:, None] for k in range(trace.n_steps)])
     np.testing.assert_allclose(shares.sum(axis=2), 1.0, rtol=1e-12)
     np.testing.assert_allclose(shares, trace.branch_shares(np.arange(trace.n_steps)), rtol=1e-12)
@@ -132,19 +166,43 @@ def test_branch_shares_differ_and_rotate(lcopt5):
     assert not np.allclose(shares[:, 0], shares[:, 1])  # cabinets have different phases
 
 
-def test_branch_shares_change_smoothly(lcopt5):
-    trace = load_trace(FRONTIER_DAY, lcopt5)
+def test_lcopt_branch_shares_change_smoothly(lcopt5):
+    trace = load_trace(FRONTIER_DAY, lcopt5, scenario="lcopt")
     shares = trace.branch_shares(np.arange(trace.n_steps))
     # 5 min smoothstep (max slope 1.5), <= 0.85 share swing (B = 3: about 0.03 <-> 0.81):
     # at most 1.5 * 0.85 / 20 = 0.064 a step; a jump would move up to 0.8 at once
     assert np.abs(np.diff(shares, axis=0)).max() < 0.07
 
 
-def test_skew_depends_on_load_skew_seed(lcopt5):
-    a = load_trace(FRONTIER_DAY, lcopt5)
-    b = load_trace(FRONTIER_DAY, lcopt5.model_copy(update={"load_skew_seed": 1}))
+def test_lcopt_skew_depends_on_load_skew_seed(lcopt5):
+    a = load_trace(FRONTIER_DAY, lcopt5, scenario="lcopt")
+    b = load_trace(FRONTIER_DAY, lcopt5.model_copy(update={"load_skew_seed": 1}), scenario="lcopt")
     np.testing.assert_array_equal(a.cabinet_load_w, b.cabinet_load_w)
     assert not np.allclose(a.branch_shares(0), b.branch_shares(0))
+
+
+def test_lcopt_scenario_is_the_papers_hardening(lcopt5):
+    plain = load_trace(FRONTIER_DAY, lcopt5)
+    hard = load_trace(FRONTIER_DAY, lcopt5, scenario="lcopt")
+    np.testing.assert_allclose(hard.wet_bulb_k - plain.wet_bulb_k, 15.0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(hard.cabinet_load_w, plain.cabinet_load_w * 225.0 / 650.0, rtol=1e-12)
+    assert hard.cabinet_load_w.mean() == pytest.approx(225e3, rel=0.01)
+
+
+def test_design_day_wet_bulb(lcopt5):
+    trace = load_trace(FRONTIER_DAY, lcopt5, scenario="design-day")
+    day = traces.DESIGN_DAYS["knoxville-0.4"]
+    hourly = (trace.wet_bulb_k - 273.15).reshape(24, -1)
+    assert hourly.max() == pytest.approx(day.peak_wet_bulb_c, abs=1e-9)
+    assert hourly.max() - hourly.min() == pytest.approx(day.daily_range_k, abs=1e-9)
+    assert 13 <= hourly.max(axis=1).argmax() <= 15  # warmest mid-afternoon
+    assert 4 <= hourly.min(axis=1).argmin() <= 5  # coolest at dawn
+    np.testing.assert_array_equal(trace.cabinet_load_w, load_trace(FRONTIER_DAY, lcopt5).cabinet_load_w)
+
+
+def test_unknown_scenario_names_the_known_ones(lcopt5):
+    with pytest.raises(TraceError, match="did you mean 'design-day'.*frontier, design-day, lcopt"):
+        load_trace(FRONTIER_DAY, lcopt5, scenario="design_day")
 
 
 # --- synthetic traces -------------------------------------------------------------------

@@ -66,7 +66,7 @@ class SensorAgent(Agent):
     def on_start(self) -> None:
         s = self.settings
         self.history = HistoryWriter(s.history_file, retention=s.history)
-        self.twin = TwinHost(s.system, s.trace, s.wet_bulb_offset_k, instance_name=self.agent_id)
+        self.twin = TwinHost(s.system, s.trace, s.scenario, s.wet_bulb_offset_k, instance_name=self.agent_id)
         self.fallback = G36Controller(self.twin.system)
         self._begin_or_resume()
         self.watch_config(self._on_config)

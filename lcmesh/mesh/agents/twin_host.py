@@ -24,9 +24,13 @@ from lcmesh.twin.traces import Trace, load_trace
 class TwinHost:
     """A running plant on a trace, stepped by the Sensor."""
 
-    def __init__(self, system_name: str, trace_spec: str, wet_bulb_offset_k: float, instance_name: str):
+    def __init__(
+        self, system_name: str, trace_spec: str, scenario: str, wet_bulb_offset_k: float, instance_name: str
+    ):
         self.system: SystemDescription = load_system(system_name)
-        self.trace: Trace = load_trace(trace_spec, self.system, wet_bulb_offset_k=wet_bulb_offset_k)
+        self.trace: Trace = load_trace(
+            trace_spec, self.system, scenario=scenario, wet_bulb_offset_k=wet_bulb_offset_k
+        )
         self.plant = Plant(self.system, instance_name=instance_name)
         self.lock = threading.RLock()  # held while stepping, injecting faults or running a what-if
         self.power_w = np.zeros(self.system.n_blade_groups)

@@ -27,7 +27,7 @@ from lcmesh.twin.controllers import Observation
 from lcmesh.twin.controllers.static import StaticController
 from lcmesh.twin.plant import Plant, PlantAction
 from lcmesh.twin.system import load_system
-from lcmesh.twin.traces import KELVIN_OFFSET, load_trace
+from lcmesh.twin.traces import KELVIN_OFFSET, load_trace, scenario_with_offset
 
 _CHUNK_ROWS = 256  # trace rows whose branch loads are computed in one vectorized call
 KPI_BAND_K = (KELVIN_OFFSET + 20.0, KELVIN_OFFSET + 40.0)  # the paper's blade-group operating band
@@ -135,7 +135,10 @@ class EpisodeDriver:
         self.system = load_system(config.system)
         self.plant = Plant(self.system)
         self.trace = load_trace(
-            config.trace, self.system, wet_bulb_offset_k=config.wet_bulb_offset_k, hours=config.trace_hours
+            config.trace,
+            self.system,
+            scenario=scenario_with_offset("lcopt", config.wet_bulb_offset_k),
+            hours=config.trace_hours,
         )
         self.default_policy = StaticController(self.system)
         self.step_s = self.system.step_s

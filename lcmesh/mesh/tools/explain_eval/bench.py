@@ -29,7 +29,7 @@ def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
     from lcmesh.bench.machine import machine_info
 
     system = load_system("lcopt-5")
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0)
+    trace = load_trace(FRONTIER_DAY, system)
     hours = 2.0 if quick else 24.0
     n_steps = int(hours * 3600 / trace.step_s)
     result: dict = {"machine": machine_info(), "system": system.name, "trace": trace.name, "controller": "g36",
