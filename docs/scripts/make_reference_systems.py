@@ -55,6 +55,29 @@ def system(name: str, C: int, N: int, m: int, groups_per_branch: int = 1, desc: 
     }
 
 
+def paper_system() -> dict:
+    """lcopt-5 as it was before the real-load sizing: LC-Opt's scaled units, for the `lcopt` scenario.
+
+    The shipped PPO policies, trees and LLM controller were trained on this plant; every schema default
+    that has since changed is written out, so the plant stays what it was.
+    """
+    desc = system("lcopt-5-paper", 5, 2, 2, desc="LC-Opt Table 3 at the paper's scale: lcopt-5 as it was before"
+                  " the real-load sizing (loads scaled to 225 kW per cabinet), for the lcopt scenario and the"
+                  " policies trained under it")
+    desc["cabinets"] = {
+        "count": 5, "branches": 3, "blade_groups_per_branch": 1, "design_heat_w": 225e3, "coolant_volume_m3": 0.083,
+        "blade_group": {"heat_unit_w": 20e3},
+        "cdu": {"hx_ua_sat_w_per_k": 73.9e3, "r_hx_secondary_pa_per_kg_s": 11_000.0,
+                "r_cabinet_pa_per_kg_s": 11_000.0, "primary_flow_max_kg_s": 15.0},
+    }
+    desc["towers"].update({
+        "cell": {"design_heat_w": 449e3, "water_flow_kg_s": 75.5, "fan_power_nominal_w": 98.4e3},
+        "ehx_ua_w_per_k": 4.849e6, "stage_down_speed": 0.08,
+    })
+    desc["htw"]["r_header_pa_per_kg_s"] = 80.0
+    return desc
+
+
 def main() -> None:
     out = {
         "lcopt-5": system("lcopt-5", 5, 2, 2, desc="LC-Opt Table 3 topology: N=2 towers, m=2 cells, C=5 cabinets, B=3 blade groups; real CDU loads"),
@@ -71,6 +94,7 @@ def main() -> None:
     hru = dict(out["lcopt-5"], name="lcopt-5-hru", description="lcopt-5 with the heat-recovery unit (LC-Opt Section 7.3)")
     hru["heat_recovery"] = {"ua_w_per_k": 150e3, "district_flow_kg_s": 20.0, "district_supply_temp_k": 293.15}
     out["lcopt-5-hru"] = hru
+    out["lcopt-5-paper"] = paper_system()
     folder = Path("lcmesh/twin/systems")
     for name, desc in out.items():
         (folder / f"{name}.json").write_text(json.dumps(desc, indent=2) + "\n")

@@ -36,7 +36,7 @@ class BenchLlmConfig:
     explain_per_level: int = 12
     control_repeats: int = 8
     teacher: str = "ppo"
-    system: str = "lcopt-5"
+    system: str = "lcopt-5-paper"
 
     @classmethod
     def make(cls, *, quick: bool, **kw) -> "BenchLlmConfig":

@@ -1,4 +1,4 @@
-"""``lcmesh train ppo``, ``lcmesh distill tree``, ``lcmesh bench control`` (the controllers issue)."""
+"""``lcmesh train ppo``, ``lcmesh distill tree``, ``lcmesh bench control`` and ``bench actions`` (the controllers issue)."""
 
 from __future__ import annotations
 
@@ -114,9 +114,88 @@ def bench_control(
     from lcmesh.bench.control import render_control, run_bench_control
     from lcmesh.bench.report import update_benchmarks_md
 
-    with console.status("benchmarking the controllers on the Frontier day"):
-        result = run_bench_control(quick=quick, plot_dir=plots)
+    with console.status("benchmarking the controllers on the Frontier day") as status:
+
+        def on_progress(stage: str, done: int, total: int) -> None:
+            status.update(f"setpoint tracking and action sweeps: {stage} ({done}/{total})")
+
+        result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress)
     write_json(json_out, result)
     if markdown is not None:
         update_benchmarks_md(markdown, "control", result, render=render_control)
+        console.print(f"updated {markdown}")
+
+
+@bench_app.command("actions")
+def bench_actions(
+    json_out: JsonOpt = None,
+    hours: Annotated[float, typer.Option(help="hours of the Frontier day per run", min=0.25, max=24.0)] = 24.0,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+    plots: Annotated[Path, typer.Option(help="folder for actions.png")] = Path("docs/img"),
+) -> None:
+    """Setpoint tracking under the static rule and G36, and each action's effect on the KPIs, per scenario (issue 12)."""
+    from lcmesh.bench.actions import render_actions, run_bench_actions
+    from lcmesh.bench.report import update_benchmarks_md
+
+    with progress_bar() as progress:
+        task = progress.add_task("setpoint tracking and action sweeps", total=None)
+
+        def on_progress(stage: str, done: int, total: int) -> None:
+            progress.update(task, completed=done, total=total, description=stage)
+
+        result = run_bench_actions(hours=hours, progress=on_progress, plot_dir=plots)
+    write_json(json_out, result)
+    if markdown is not None:
+        update_benchmarks_md(markdown, "actions", result, render=render_actions)
+        console.print(f"updated {markdown}")
+
+
+@bench_app.command("suite")
+def bench_suite(
+    controllers: Annotated[str, typer.Option(help="comma-separated controller names (registry or 'package.module:Class')")] = (
+        "static,g36,rule,lookahead,ppo,tree"
+    ),
+    system: Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")] = (
+        "lcopt-5"
+    ),
+    hours: Annotated[float, typer.Option(help="hours of each day", min=0.25, max=24.0)] = 24.0,
+    days: Annotated[Optional[str], typer.Option(help="comma-separated day labels (default: every day of the split)")] = None,
+    validation: Annotated[bool, typer.Option(help="run the validation days (checkpoint selection) instead of the test days")] = False,
+    reference: Annotated[str, typer.Option(help="the controller regret is measured against")] = "lookahead",
+    json_out: JsonOpt = None,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+    plots: Annotated[Path, typer.Option(help="folder for suite_pareto.png")] = Path("docs/img"),
+) -> None:
+    """Every controller on the held-out days (lcmesh/bench/suite.py): mean ± std, per-day figures, regret (issue 13)."""
+    from lcmesh.bench.report import update_benchmarks_md
+    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, plot_pareto, render_suite, run_suite
+    from lcmesh.cli.common import load_system_or_fail
+
+    names = [n.strip() for n in controllers.split(",") if n.strip()]
+    if not names:
+        fail(f"`--controllers` must name at least one controller, e.g. static,g36; got {controllers!r}")
+    load_system_or_fail(system)
+    pool = VALIDATION_DAYS if validation else TEST_DAYS
+    try:
+        chosen = pool if days is None else days_named([d.strip() for d in days.split(",") if d.strip()], pool)
+    except ValueError as exc:
+        fail(f"`--days`: {exc}")
+    if not chosen:
+        fail(f"`--days` must name at least one day, got {days!r}")
+    with progress_bar() as progress:
+        task = progress.add_task("held-out days", total=len(names) * len(chosen))
+
+        def on_progress(stage: str, done: int, total: int) -> None:
+            progress.update(task, completed=done, total=total, description=stage)
+
+        result = run_suite(names, system, chosen, hours=hours, reference=reference, progress=on_progress)
+    for name, entry in result["controllers"].items():
+        if entry["error"] is not None:
+            console.print(f"[yellow]{name}: not run[/yellow] ({entry['error']})")
+    if result["regret_note"]:
+        console.print(result["regret_note"])
+    result["plot"] = str(plot_pareto(result, plots / "suite_pareto.png"))
+    write_json(json_out, result)
+    if markdown is not None:
+        update_benchmarks_md(markdown, "suite", result, render=render_suite)
         console.print(f"updated {markdown}")

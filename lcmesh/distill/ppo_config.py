@@ -30,7 +30,7 @@ class PpoConfig:
 
     case: int = 7
     """Ablation case 2..7 (Table 3); case 1 is G36 and needs no training."""
-    system: str = "lcopt-5"
+    system: str = "lcopt-5-paper"
     """System to train on (reference name or JSON path)."""
     total_env_steps: int = 320_000
     """Plant steps over all parallel envs (the paper: 2e6)."""

@@ -11,7 +11,7 @@ class TreeDistillConfig:
 
     policy: str = ""
     """Teacher policy (path without suffix: NAME.json + NAME.safetensors); empty: the shipped case-7 policy."""
-    system: str = "lcopt-5"
+    system: str = "lcopt-5-paper"
     train_seeds: str = "0-7"
     """Synthetic training traces the teacher is rolled over (a range 'A-B' or a comma list)."""
     heldout_seed: int = 1003

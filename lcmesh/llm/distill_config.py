@@ -15,7 +15,7 @@ class LlmDistillConfig:
     """Teacher controller: ppo (the shipped case-7 policy or --policy), g36, or tree."""
     policy: str = ""
     """Teacher policy file for ppo / tree (empty: the shipped one)."""
-    system: str = "lcopt-5"
+    system: str = "lcopt-5-paper"
     train_seeds: str = "0-3"
     """Synthetic training traces the teacher is rolled over ('A-B' or a comma list)."""
     steps_per_trace: int = 960

@@ -215,6 +215,7 @@ def trace_split(kind: Literal["train", "eval"]) -> list[str]:
 class Scenario:
     """How a trace's data becomes the twin's inputs: weather, load scale and the spread over branches.
 
+    ``cabinet_mean_w``: the mean cabinet load the trace is scaled to (default: the system's ``design_heat_w``).
     ``branch_spread`` "data": each branch follows the time profile of another CDU column of the trace
     (docs/traces.md); "lcopt": LC-Opt's seeded 25:1 rotating pattern. ``design_day``: replace the
     trace's wet bulb by the design-day profile of that name (`DESIGN_DAYS`).
@@ -224,7 +225,7 @@ class Scenario:
     description: str
     branch_spread: Literal["data", "lcopt"] = "data"
     wet_bulb_offset_k: float = 0.0
-    load_scale: float = 1.0
+    cabinet_mean_w: float | None = None  # scale the loads to this mean per cabinet instead of `design_heat_w`
     design_day: str | None = None
 
 
@@ -282,7 +283,7 @@ SCENARIOS = {
             f" loads scaled to a {LCOPT_LOAD_W / 1e3:.0f} kW mean per cabinet",
             branch_spread="lcopt",
             wet_bulb_offset_k=15.0,
-            load_scale=LCOPT_LOAD_W / FRONTIER_MEAN_CDU_LOAD_W,
+            cabinet_mean_w=LCOPT_LOAD_W,
         ),
     )
 }
@@ -324,10 +325,11 @@ def load_trace(
     spec = str(spec)
     trace_seed: int | None = None
     cab = system.cabinets
+    mean_w = cab.design_heat_w if scen.cabinet_mean_w is None else scen.cabinet_mean_w
     if spec.startswith("synthetic:"):
         trace_seed = _parse_seed(spec)
         n_steps = _hours_to_steps(24.0 if hours is None else hours, system.step_s)
-        load_w, wet_bulb_c = _synthetic(trace_seed, system, n_steps)
+        load_w, wet_bulb_c = _synthetic(trace_seed, system, n_steps, mean_w)
         # the branches' profiles: the same job model for C*B racks of a third of the load each
         profiles = _synthetic_profiles(trace_seed, system, n_steps) if scen.branch_spread == "data" else None
         name = f"synthetic:{trace_seed}"
@@ -345,8 +347,7 @@ def load_trace(
             power_w, wet_bulb_c = power_w[:n_steps], wet_bulb_c[:n_steps]
         profiles = _column_profiles(power_w, system) if scen.branch_spread == "data" else None
         power_w = _columns_to_cabinets(power_w, system)
-        load_w, name = power_w * (cab.design_heat_w / FRONTIER_MEAN_CDU_LOAD_W), spec
-    load_w = load_w * scen.load_scale
+        load_w, name = power_w * (mean_w / FRONTIER_MEAN_CDU_LOAD_W), spec
     if scen.design_day is not None:
         wet_bulb_c = DESIGN_DAYS[scen.design_day].wet_bulb_c(system.step_s * np.arange(len(wet_bulb_c)))
     wet_bulb_k = wet_bulb_c + KELVIN_OFFSET + scen.wet_bulb_offset_k + wet_bulb_offset_k
@@ -580,11 +581,11 @@ _PEAK_OVER_MEAN = 1.75
 _WARMUP_S = 6 * 3600.0  # jobs start before t = 0 so the trace does not open empty
 
 
-def _synthetic(seed: int, system: SystemDescription, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """Seeded job-based cabinet loads (W) and diurnal wet bulb (deg C)."""
+def _synthetic(seed: int, system: SystemDescription, n_steps: int, mean_w: float) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded job-based cabinet loads (W, about `mean_w` on average) and diurnal wet bulb (deg C)."""
     rng = np.random.Generator(np.random.PCG64(seed))
     load, wet_bulb_c = _synthetic_series(rng, system.n_cabinets, system.step_s, n_steps)
-    return load * system.cabinets.design_heat_w, wet_bulb_c
+    return load * mean_w, wet_bulb_c
 
 
 def _synthetic_series(

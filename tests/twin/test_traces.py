@@ -186,6 +186,8 @@ def test_lcopt_scenario_is_the_papers_hardening(lcopt5):
     hard = load_trace(FRONTIER_DAY, lcopt5, scenario="lcopt")
     np.testing.assert_allclose(hard.wet_bulb_k - plain.wet_bulb_k, 15.0, rtol=0, atol=1e-9)
     np.testing.assert_allclose(hard.cabinet_load_w, plain.cabinet_load_w * 225.0 / 650.0, rtol=1e-12)
+    paper = load_trace(FRONTIER_DAY, load_system("lcopt-5-paper"), scenario="lcopt")  # scaled once, not twice
+    np.testing.assert_allclose(paper.cabinet_load_w, hard.cabinet_load_w, rtol=1e-12)
     assert hard.cabinet_load_w.mean() == pytest.approx(225e3, rel=0.01)
 
 
