@@ -275,12 +275,13 @@ def _monotonic(plant: Plant, settle_h: float, field: str, values: list[float], n
             previous = temps
     plant.restore_state(start)
     plant.free_state(start)
-    # the supply loop may settle anywhere inside its deadband, so two steady states differ by up to that much
-    tolerance_k = plant.system.cabinets.cdu.temp_deadband_k
+    # the supply loop rests anywhere within +-deadband of its setpoint, so two steady states may differ by the
+    # band's full width
+    tolerance_k = 2.0 * plant.system.cabinets.cdu.temp_deadband_k
     return {
         "name": name,
-        "criterion": f"{sweep}: no blade group warmer at steady state (tolerance: the supply loop's "
-        f"{tolerance_k} K deadband)",
+        "criterion": f"{sweep}: no blade group warmer at steady state (tolerance {tolerance_k:g} K: the width of "
+        "the supply loop's deadband, where the supply may rest)",
         "largest_rise_k": worst,
         "rows": rows,
         "passed": worst <= tolerance_k,

@@ -26,6 +26,13 @@ def test_lcopt5_passes_every_validation_check(lcopt5, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("name", ["lcopt-10", "lcopt-25", "lcopt-5-hru", "lcopt-5-paper"])
+def test_other_reference_systems_pass_every_validation_check(name):
+    report = validate_twin(load_system(name))
+    assert report["passed"], [c["name"] for c in report["checks"] if not c["passed"]]
+
+
+@pytest.mark.slow
 def test_frontier_full_passes_every_validation_check():
     report = validate_twin(load_system("frontier-full"))
     assert report["passed"], [c["name"] for c in report["checks"] if not c["passed"]]
