@@ -48,14 +48,16 @@ class Clamp(NamedTuple):
 
 @dataclass(frozen=True)
 class EpisodeConfig:
-    """What every lc-mesh env is built from; the defaults reproduce LC-Opt's setting on lcopt-5."""
+    """What every lc-mesh env is built from; the defaults reproduce LC-Opt's setting (the ``lcopt`` scenario on
+    lcopt-5-paper, the plant the shipped policies were trained on; docs/twin.md)."""
 
-    system: str = "lcopt-5"
+    system: str = "lcopt-5-paper"
     """Reference system name (``lcopt-5``) or a path to a system-description JSON."""
     trace: str = "synthetic:0"
     """Load and weather: ``"synthetic:SEED"``, ``"frontier-2024-04-07"`` or a CSV path."""
     wet_bulb_offset_k: float = 15.0
-    """Added to the trace's wet bulb; +15 K is the LC-Opt paper's hardening."""
+    """Added to the trace's wet bulb; +15 K is the LC-Opt paper's hardening. The trace is read under the ``lcopt``
+    scenario (its 25:1 branch skew and 225 kW loads) with this offset in place of the scenario's."""
     trace_hours: float | None = None
     """Use only the first hours of the trace (None: all of it, 24 h for synthetic traces)."""
     episode_steps: int | None = 200
