@@ -82,7 +82,7 @@ def explanation_samples(
     from lcmesh.mesh.tools.facts import cabinet_decision_facts
     from lcmesh.twin.controllers import Observation
     from lcmesh.twin.plant import Plant
-    from lcmesh.twin.traces import load_trace
+    from lcmesh.twin.traces import load_trace, scenario_with_offset
 
     total = sum(counts.values())
     if total == 0:

@@ -165,15 +165,16 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
     seed_order = np.random.default_rng(cfg.seed).permutation(np.asarray(TRAIN_SEEDS))
-    plants = TrainPlants(cfg.system, itertools.cycle(int(s) for s in seed_order), cfg.n_envs, cfg.episode_steps)
+    plants = TrainPlants(cfg.system, itertools.cycle(int(s) for s in seed_order), cfg.n_envs, cfg.episode_steps,
+                         scenarios=cfg.scenario_list())  # fmt: skip
     system = plants.system
     trainers = build_trainers(cfg, plants)
     case = CASES[cfg.case]
     layout = FeatureLayout(plants.B, plants.m)
     steps_per_update = cfg.n_envs * cfg.episode_steps
     n_updates = max(1, cfg.total_env_steps // steps_per_update)
-    eval_traces = [load_trace(spec.strip(), system, scenario="lcopt", hours=cfg.eval_hours)
-                   for spec in cfg.eval_trace.split(",") if spec.strip()]  # fmt: skip
+    eval_traces = [load_trace(spec, system, scenario=scenario, hours=cfg.eval_hours)
+                   for spec, scenario in cfg.eval_days()]  # fmt: skip
     eval_plant = Plant(system)
     log_path = out / "log.csv"
     log_file = log_path.open("w", newline="")

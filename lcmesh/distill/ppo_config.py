@@ -61,9 +61,12 @@ class PpoConfig:
     max_grad_norm: float = 0.5
     eval_every: int = 10
     """Updates between validation runs (checkpoint selection)."""
+    scenarios: str = "lcopt"
+    """Training scenarios (comma list; a training seed s runs under scenario s mod their count): ``lcopt`` is the
+    shipped policies' setting; ``frontier,design-day`` trains on the real loads, mild and hot weather."""
     eval_trace: str = "synthetic:1002,synthetic:1003,synthetic:1004,synthetic:1006"
-    """Validation traces (comma list) for checkpoint selection: evaluation seeds whose G36 score (82-88 %) is
-    like the Frontier day's, never a training seed, and not the Frontier day itself (the test trace)."""
+    """Validation traces (comma list; ``SPEC@SCENARIO`` picks a scenario, default the first training scenario) for
+    checkpoint selection: never a training seed and never a test day (lcmesh/bench/suite.py)."""
     eval_hours: float = 24.0
     eval_ct_weight_per_kw: float = 0.02
     """Checkpoint score = d_blade_pct - this * ct_power_kw_avg (2 points per 100 kW of fans)."""
@@ -72,7 +75,26 @@ class PpoConfig:
     out: str = "runs/ppo"
     """Run folder: config, CSV log, checkpoints, plots."""
 
+    def scenario_list(self) -> tuple[str, ...]:
+        return tuple(s.strip() for s in self.scenarios.split(",") if s.strip())
+
+    def eval_days(self) -> list[tuple[str, str]]:
+        """(trace spec, scenario) pairs of the validation traces."""
+        default = self.scenario_list()[0]
+        days = []
+        for item in self.eval_trace.split(","):
+            if item.strip():
+                spec, _, scenario = item.strip().partition("@")
+                days.append((spec, scenario or default))
+        return days
+
     def __post_init__(self) -> None:
+        if not self.scenario_list():
+            raise ValueError("`scenarios` must name at least one scenario (e.g. 'lcopt' or 'frontier,design-day')")
+        from lcmesh.twin.traces import scenario_named  # numpy only: the CLI stays fast
+
+        for name in (*self.scenario_list(), *(scenario for _, scenario in self.eval_days())):
+            scenario_named(name)
         if self.case not in CASES:
             raise ValueError(f"`case` must be one of {sorted(CASES)} (case 1 is G36, no training), got {self.case}")
         for name in ("total_env_steps", "n_envs", "episode_steps", "epochs", "minibatch", "eval_every"):

@@ -32,10 +32,12 @@ TOWER_OVERHEAT_WEIGHT = 3.0
 class TrainPlants:
     """E plants with their baseline, tower setpoint holder and feature builder."""
 
-    def __init__(self, system: str, seeds: Iterator[int], n_envs: int, episode_steps: int, wet_bulb_offset_k: float = 15.0):
+    def __init__(
+        self, system: str, seeds: Iterator[int], n_envs: int, episode_steps: int, scenarios: tuple[str, ...] = ("lcopt",)
+    ):
         self.seeds = seeds
         self.episode_steps = episode_steps
-        self.wet_bulb_offset_k = wet_bulb_offset_k
+        self.scenarios = scenarios
         self.system_name = system
         self.drivers = [self._driver() for _ in range(n_envs)]
         self.system = self.drivers[0].system
@@ -49,9 +51,11 @@ class TrainPlants:
         self.fan_norm = 1.0 / (self.m * s.towers.cell.fan_power_nominal_w)
 
     def _driver(self) -> EpisodeDriver:
+        seed = next(self.seeds)
+        scenario = self.scenarios[seed % len(self.scenarios)]  # a seed's scenario is fixed, whatever the order
         config = EpisodeConfig(
-            system=self.system_name, trace=f"synthetic:{next(self.seeds)}", wet_bulb_offset_k=self.wet_bulb_offset_k,
-            episode_steps=self.episode_steps,
+            system=self.system_name, trace=f"synthetic:{seed}", scenario=scenario,
+            wet_bulb_offset_k=15.0 if scenario == "lcopt" else None, episode_steps=self.episode_steps,
         )  # fmt: skip
         return EpisodeDriver(config)
 

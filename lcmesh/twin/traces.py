@@ -512,7 +512,7 @@ def _stream(*entropy: int) -> np.random.Generator:
 
 def _make_skew(system: SystemDescription, trace_seed: int | None) -> LoadSkew:
     cab = system.cabinets
-    n_cab, n_br, n_grp = cab.count, cab.branches, cab.blade_groups_per_branch
+    n_cab, n_br = cab.count, cab.branches
     entropy = [system.load_skew_seed, _BRANCH_STREAM] + ([] if trace_seed is None else [trace_seed])
     rng = _stream(*entropy)
     geometric = _SHARE_RATIO ** np.linspace(0.0, 1.0, n_br)

@@ -55,9 +55,11 @@ class EpisodeConfig:
     """Reference system name (``lcopt-5``) or a path to a system-description JSON."""
     trace: str = "synthetic:0"
     """Load and weather: ``"synthetic:SEED"``, ``"frontier-2024-04-07"`` or a CSV path."""
-    wet_bulb_offset_k: float = 15.0
-    """Added to the trace's wet bulb; +15 K is the LC-Opt paper's hardening. The trace is read under the ``lcopt``
-    scenario (its 25:1 branch skew and 225 kW loads) with this offset in place of the scenario's."""
+    scenario: str = "lcopt"
+    """How the trace drives the plant (``lcmesh.twin.traces.SCENARIOS``): ``lcopt`` is LC-Opt's 25:1 branch skew
+    and 225 kW loads; ``frontier`` and ``design-day`` are the real loads."""
+    wet_bulb_offset_k: float | None = 15.0
+    """Replaces the scenario's wet-bulb offset (+15 K is the LC-Opt paper's hardening); None keeps the scenario's."""
     trace_hours: float | None = None
     """Use only the first hours of the trace (None: all of it, 24 h for synthetic traces)."""
     episode_steps: int | None = 200
@@ -81,7 +83,7 @@ class EpisodeConfig:
             raise ValueError(f"`runaway_temp_k` must be a positive number of kelvin, got {self.runaway_temp_k}")
         if not (math.isfinite(self.spin_up_hours) and self.spin_up_hours >= 0):
             raise ValueError(f"`spin_up_hours` must be >= 0, got {self.spin_up_hours}")
-        if not math.isfinite(self.wet_bulb_offset_k):
+        if self.wet_bulb_offset_k is not None and not math.isfinite(self.wet_bulb_offset_k):
             raise ValueError(f"`wet_bulb_offset_k` must be a finite number of kelvin, got {self.wet_bulb_offset_k}")
 
 
@@ -139,7 +141,11 @@ class EpisodeDriver:
         self.trace = load_trace(
             config.trace,
             self.system,
-            scenario=scenario_with_offset("lcopt", config.wet_bulb_offset_k),
+            scenario=(
+                config.scenario
+                if config.wet_bulb_offset_k is None
+                else scenario_with_offset(config.scenario, config.wet_bulb_offset_k)
+            ),
             hours=config.trace_hours,
         )
         self.default_policy = StaticController(self.system)
