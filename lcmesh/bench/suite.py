@@ -1,0 +1,355 @@
+"""``lcmesh bench suite``: every controller on a held-out suite of days, with regret against a reference (issue 13).
+
+The days are declared here and nowhere else. Training uses ``TRAIN_SEEDS`` (0-999, lcmesh/twin/traces.py);
+the test and validation days come from the Frontier day and ``EVAL_SEEDS`` (1000-1999), and
+`assert_disjoint` proves no test day is a validation or training day.
+
+How the synthetic days were picked (once, deterministically; loads and wet bulbs of lcopt-5 under
+``frontier``). Over seeds 1000-1040 the mean load is 1.05 +- 0.14 x design (design = the system's
+``design_heat_w`` per cabinet) and the mean wet bulb 9.4 +- 4.9 C. *Mild* days: for each of the six targets
+(load z = -1, +1) x (wet bulb z = -1, 0, +1), the seed nearest in z-space, first seed on ties. *Hot* days
+run under ``design-day`` (Knoxville's 0.4 % design wet bulb, 20.7-24.6 C, mean 22.5 C, replaces the
+trace's), so only the workload differs: for load z = -1.5, -0.5, +0.5, +1.5 the nearest seed not yet
+taken. *Validation* days: seeds 1990-1993, outside the scanned range, so the test picks never depend on them.
+
+====================  ============  ===========  ====================  ==================
+label                 trace         scenario     mean load / design    mean wet bulb (C)
+====================  ============  ===========  ====================  ==================
+frontier              Frontier day  frontier     1.00                  7.8
+frontier-hot          Frontier day  design-day   1.00                  22.5
+mild-1010             1010          frontier     0.94 (low)            4.7 (cool)
+mild-1037             1037          frontier     0.83 (low)            9.4 (middle)
+mild-1005             1005          frontier     0.89 (low)            15.5 (warm)
+mild-1039             1039          frontier     1.21 (high)           4.1 (cool)
+mild-1009             1009          frontier     1.17 (high)           8.5 (middle)
+mild-1019             1019          frontier     1.18 (high)           15.1 (warm)
+hot-1003              1003          design-day   0.85                  22.5
+hot-1016              1016          design-day   0.97                  22.5
+hot-1011              1011          design-day   1.12                  22.5
+hot-1033              1033          design-day   1.26                  22.5
+val-mild-1990         1990          frontier     0.84                  8.9
+val-mild-1991         1991          frontier     0.91                  14.9
+val-hot-1992          1992          design-day   1.14                  22.5
+val-hot-1993          1993          design-day   1.29                  22.5
+====================  ============  ===========  ====================  ==================
+
+Per controller and day: D_blade, tower fan, pump and cooling (fans + pumps) energy, cooling PUE, actuator
+travel (summed |change| of the applied setpoints over the day and over all cabinets, branches or towers),
+blade max and wall time; mean and sample std over the days; *regret* against the reference controller per
+day: D_blade points below it and cooling kWh above it (positive = worse than the reference).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lcmesh.bench.machine import machine_info
+from lcmesh.twin.controllers import Controller, make_controller
+from lcmesh.twin.plant import Plant
+from lcmesh.twin.run import run_twin
+from lcmesh.twin.system import PSI_TO_PA, SystemDescription, load_system
+from lcmesh.twin.traces import FRONTIER_DAY, Trace, load_trace, trace_split
+
+_K = 273.15
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class Day:
+    """One day of the suite: a trace spec, the scenario it runs under and a short label for tables and the CLI."""
+
+    trace: str
+    scenario: str
+    label: str
+
+
+def _synthetic(seed: int, scenario: str, prefix: str) -> Day:
+    return Day(f"synthetic:{seed}", scenario, f"{prefix}-{seed}")
+
+
+MILD_SEEDS = (1010, 1037, 1005, 1039, 1009, 1019)
+HOT_SEEDS = (1003, 1016, 1011, 1033)
+TEST_DAYS: tuple[Day, ...] = (
+    Day(FRONTIER_DAY, "frontier", "frontier"),
+    Day(FRONTIER_DAY, "design-day", "frontier-hot"),
+    *(_synthetic(s, "frontier", "mild") for s in MILD_SEEDS),
+    *(_synthetic(s, "design-day", "hot") for s in HOT_SEEDS),
+)
+VALIDATION_DAYS: tuple[Day, ...] = (
+    _synthetic(1990, "frontier", "val-mild"),
+    _synthetic(1991, "frontier", "val-mild"),
+    _synthetic(1992, "design-day", "val-hot"),
+    _synthetic(1993, "design-day", "val-hot"),
+)
+
+FIGURES = ("d_blade_pct", "tower_fan_kwh", "pump_kwh", "cooling_kwh", "pue_cooling", "blade_max_c", "wall_s")
+TRAVEL = ("supply_temp_setpoint_k", "dp_setpoint_pa", "valve_fraction", "lw_setpoint_k")
+REGRET = ("d_blade_pts", "cooling_kwh")
+SUITE_HEADER = (
+    "| controller | D_blade % | tower fans kWh | pumps kWh | cooling kWh | cooling PUE | supply travel K | "
+    "dp travel psi | valve travel | tower LW travel K | regret D_blade pts | regret cooling kWh |"
+)
+
+
+def assert_disjoint() -> None:
+    """Raise if a test day is also a validation day, a training trace, or outside the evaluation split."""
+    test = {d.trace for d in TEST_DAYS}
+    validation = {d.trace for d in VALIDATION_DAYS}
+    if shared := test & validation:
+        raise AssertionError(f"test days also used for validation: {sorted(shared)}")
+    if leaked := (test | validation) & set(trace_split("train")):
+        raise AssertionError(f"held-out days that are training traces: {sorted(leaked)}")
+    if outside := (test | validation) - set(trace_split("eval")):
+        raise AssertionError(f"held-out days outside the evaluation split (Frontier day, EVAL_SEEDS): {sorted(outside)}")
+    labels = [d.label for d in TEST_DAYS + VALIDATION_DAYS]
+    if len(set(labels)) != len(labels):
+        raise AssertionError(f"day labels must be unique, got {labels}")
+
+
+def days_named(labels: Iterable[str], pool: tuple[Day, ...] = TEST_DAYS) -> tuple[Day, ...]:
+    """The days of ``pool`` with these labels, in the order given; an unknown label gets the closest known one."""
+    by_label = {d.label: d for d in pool}
+    days = []
+    for label in labels:
+        if label not in by_label:
+            close = difflib.get_close_matches(label, by_label, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ValueError(f"unknown day {label!r}{hint} (known: {', '.join(by_label)})")
+        days.append(by_label[label])
+    return tuple(days)
+
+
+def load_day(day: Day, system: SystemDescription, hours: float | None = None) -> Trace:
+    """The day's trace for ``system`` under the day's scenario (the first ``hours`` when given)."""
+    return load_trace(day.trace, system, scenario=day.scenario, hours=hours)
+
+
+def run_day(system: SystemDescription, trace: Trace, controller: Controller) -> dict:
+    """``controller`` on a fresh plant over ``trace``: the suite's figures for that day."""
+    with Plant(system) as plant:
+        run = run_twin(plant, trace, controller)
+    kpi, hours = run.kpi, run.sim_seconds / 3600.0
+    fan_kwh, pump_kwh = kpi["ct_power_kw_avg"] * hours, kpi["pump_power_kw_avg"] * hours
+    return {
+        "d_blade_pct": kpi["d_blade_pct"],
+        "tower_fan_kwh": fan_kwh,
+        "pump_kwh": pump_kwh,
+        "cooling_kwh": fan_kwh + pump_kwh,
+        "it_kwh": kpi["it_power_kw_avg"] * hours,
+        "pue_cooling": kpi["pue_cooling"],
+        "travel": {k: kpi["actuator_travel"][k] for k in TRAVEL},
+        "blade_max_c": kpi["blade_temp_max_c"],
+        "wall_s": run.wall_seconds,
+    }
+
+
+def run_suite(
+    controllers: list[str],
+    system_name: str = "lcopt-5",
+    days: tuple[Day, ...] = TEST_DAYS,
+    hours: float = 24.0,
+    reference: str = "lookahead",
+    progress: Progress | None = None,
+) -> dict:
+    """Each controller on each day; per-day figures, mean and std over the days, regret against ``reference``.
+
+    A controller that fails to build or to run is reported with its error, not raised.
+    """
+    if not controllers:
+        raise ValueError("`controllers` must name at least one controller, got none")
+    if not days:
+        raise ValueError("`days` must hold at least one day, got none")
+    system = load_system(system_name)
+    traces = {d.label: load_day(d, system, hours) for d in days}
+    total, done = len(controllers) * len(days), 0
+    per_controller: dict[str, dict] = {}
+    for name in controllers:
+        entry: dict = {"error": None, "days": {}}
+        for day in days:
+            if entry["error"] is None:
+                entry = _run_one(entry, system, traces[day.label], name, day.label)
+            done += 1
+            if progress is not None:
+                progress(f"{name} on {day.label}", done, total)
+        if entry["error"] is None:
+            entry["mean"], entry["std"] = _mean_std(list(entry["days"].values()))
+        per_controller[name] = entry
+    result = {
+        "machine": machine_info(),
+        "system": system_name,
+        "hours": hours,
+        "reference": reference,
+        "days": [_day_facts(d, traces[d.label]) for d in days],
+        "controllers": per_controller,
+    }
+    result["regret_note"] = _add_regret(per_controller, reference)
+    return result
+
+
+def _day_facts(day: Day, trace: Trace) -> dict:
+    return {
+        "label": day.label,
+        "trace": day.trace,
+        "scenario": day.scenario,
+        "mean_load_kw": float(trace.cabinet_load_w.sum(axis=1).mean() / 1e3),
+        "mean_wet_bulb_c": float(trace.wet_bulb_k.mean() - _K),
+    }
+
+
+def _run_one(entry: dict, system: SystemDescription, trace: Trace, name: str, label: str) -> dict:
+    """Add one day to ``entry``, or return an entry that holds the error (a fresh controller per day, no carry-over)."""
+    try:
+        controller = make_controller(name, system)
+    except Exception as exc:  # noqa: BLE001 - a controller that cannot be built is a result of the benchmark
+        return {"error": f"build failed: {type(exc).__name__}: {exc}", "days": {}}
+    try:
+        entry["days"][label] = run_day(system, trace, controller)
+    except Exception as exc:  # noqa: BLE001 - so is one that fails mid-run
+        return {"error": f"run on {label} failed: {type(exc).__name__}: {exc}", "days": {}}
+    return entry
+
+
+def _mean_std(rows: list[dict]) -> tuple[dict, dict]:
+    """Mean and sample std (0 for one day) of every figure over the days; travel is a nested dict."""
+    mean, std = {}, {}
+    for key in FIGURES:
+        mean[key], std[key] = _stats([r[key] for r in rows])
+    mean["travel"], std["travel"] = {}, {}
+    for key in TRAVEL:
+        mean["travel"][key], std["travel"][key] = _stats([r["travel"][key] for r in rows])
+    return mean, std
+
+
+def _stats(values: list[float]) -> tuple[float, float]:
+    """Mean and sample std (n - 1; 0 for a single value)."""
+    a = np.asarray(values, dtype=np.float64)
+    return float(a.mean()), (float(a.std(ddof=1)) if a.size > 1 else 0.0)
+
+
+def _add_regret(per_controller: dict[str, dict], reference: str) -> str | None:
+    """Regret of every working controller against ``reference``, in place; a note when it cannot be computed."""
+    if reference not in per_controller:
+        return f"no regret: the reference {reference!r} is not among the controllers"
+    ref = per_controller[reference]
+    if ref["error"] is not None:
+        return f"no regret: the reference {reference!r} failed ({ref['error']})"
+    for entry in per_controller.values():
+        if entry["error"] is not None:
+            continue
+        days = {
+            label: {"d_blade_pts": ref["days"][label]["d_blade_pct"] - r["d_blade_pct"],
+                    "cooling_kwh": r["cooling_kwh"] - ref["days"][label]["cooling_kwh"]}
+            for label, r in entry["days"].items()
+        }  # fmt: skip
+        stats = {k: _stats([r[k] for r in days.values()]) for k in REGRET}
+        entry["regret"] = {
+            "days": days,
+            "mean": {k: mean for k, (mean, _) in stats.items()},
+            "std": {k: std for k, (_, std) in stats.items()},
+        }
+    return None
+
+
+def _pm(mean: float, std: float, digits: int) -> str:
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"
+
+
+def render_suite(r: dict) -> str:
+    """The BENCHMARKS.md section: mean ± std per controller, a per-day table, the days, the machine."""
+    m, hours = r["machine"], r["hours"]
+    working = {n: e for n, e in r["controllers"].items() if e["error"] is None}
+    lines = [
+        "## Control suite: held-out days (`lcmesh bench suite --json runs/bench/suite.json --markdown BENCHMARKS.md`)",
+        "",
+        (
+            f"{r['system']}, {len(r['days'])} days of {hours:g} h (below), none used for training or validation "
+            f"(lcmesh/bench/suite.py). Energies in kWh over {hours:g} h; travel = summed |change| of the applied "
+            "setpoints over the day and over all cabinets, branches or towers; mean ± sample std over the days. "
+            f"Regret against `{r['reference']}`: D_blade points below it, cooling kWh above it (positive = worse)."
+        ),
+        "",
+        SUITE_HEADER,
+        "|---" * 12 + "|",
+    ]
+    for name, e in working.items():
+        mu, sd = e["mean"], e["std"]
+        mt, st = mu["travel"], sd["travel"]
+        regret = e.get("regret")
+        regret_cells = (
+            f"{_pm(regret['mean']['d_blade_pts'], regret['std']['d_blade_pts'], 2)} | "
+            f"{_pm(regret['mean']['cooling_kwh'], regret['std']['cooling_kwh'], 0)}"
+            if regret else " | "
+        )  # fmt: skip
+        lines.append(
+            f"| {name} | {_pm(mu['d_blade_pct'], sd['d_blade_pct'], 2)} | {_pm(mu['tower_fan_kwh'], sd['tower_fan_kwh'], 0)} | "
+            f"{_pm(mu['pump_kwh'], sd['pump_kwh'], 0)} | {_pm(mu['cooling_kwh'], sd['cooling_kwh'], 0)} | "
+            f"{_pm(mu['pue_cooling'], sd['pue_cooling'], 4)} | {_pm(mt['supply_temp_setpoint_k'], st['supply_temp_setpoint_k'], 1)} | "
+            f"{_pm(mt['dp_setpoint_pa'] / PSI_TO_PA, st['dp_setpoint_pa'] / PSI_TO_PA, 1)} | "
+            f"{_pm(mt['valve_fraction'], st['valve_fraction'], 2)} | {_pm(mt['lw_setpoint_k'], st['lw_setpoint_k'], 1)} | "
+            f"{regret_cells} |"
+        )
+    for name, e in r["controllers"].items():
+        if e["error"] is not None:
+            lines.append(f"| {name} | not run: {e['error'].replace('|', '/')} |" + " |" * 10)
+    if r.get("regret_note"):
+        lines += ["", f"Regret: {r['regret_note']}."]
+    if working:
+        lines += ["", "### Per day: D_blade % / cooling kWh", "",
+                  "| day | " + " | ".join(working) + " |", "|---" * (len(working) + 1) + "|"]  # fmt: skip
+        for d in r["days"]:
+            cells = [f"{e['days'][d['label']]['d_blade_pct']:.2f} / {e['days'][d['label']]['cooling_kwh']:.0f}"
+                     for e in working.values()]  # fmt: skip
+            lines.append(f"| {d['label']} | " + " | ".join(cells) + " |")
+    if "plot" in r:
+        lines += ["", f"![D_blade against cooling energy, per controller]({r['plot']})"]
+    lines += ["", "### Days", "", "| label | trace | scenario | mean IT load kW | mean wet bulb C |"]
+    lines.append("|---" * 5 + "|")
+    for d in r["days"]:
+        lines.append(f"| {d['label']} | {d['trace']} | {d['scenario']} | {d['mean_load_kw']:,.0f} | "
+                     f"{d['mean_wet_bulb_c']:.1f} |")  # fmt: skip
+    walls = [f"{n} {e['mean']['wall_s']:.2f} s" for n, e in working.items()]
+    machine = (
+        f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; Python {m['python']}, numpy {m['numpy']}; "
+        f"commit {m['commit']}; {m['date']}. Mean wall time of a day's loop: {', '.join(walls) or 'none'}."
+    )
+    lines += ["", machine]
+    return "\n".join(lines)
+
+
+def plot_pareto(r: dict, path: str | Path) -> Path:
+    """D_blade against cooling energy: each controller's mean with std bars, and its days as faint points."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    working = [(n, e) for n, e in r["controllers"].items() if e["error"] is None]
+    for i, (name, e) in enumerate(working):
+        days, colour = list(e["days"].values()), f"C{i % 10}"
+        ax.scatter([d["cooling_kwh"] for d in days], [d["d_blade_pct"] for d in days], s=14, color=colour, alpha=0.3)
+        mu, sd = e["mean"], e["std"]
+        # D_blade cannot pass 100 %: the std bar is cut there rather than drawn into the impossible
+        yerr = [[sd["d_blade_pct"]], [min(sd["d_blade_pct"], 100.0 - mu["d_blade_pct"])]]
+        ax.errorbar(mu["cooling_kwh"], mu["d_blade_pct"], xerr=sd["cooling_kwh"], yerr=yerr,
+                    fmt="o", ms=9, capsize=4, color=colour, label=name)  # fmt: skip
+    per = "day" if math.isclose(r["hours"], 24.0) else f"{r['hours']:g} h"
+    ax.set_xlabel(f"cooling energy, tower fans + pumps (kWh per {per}); better: up and left")
+    ax.set_ylabel("D_blade (% of blade-group steps in 20-40 C)")
+    ax.set_title(f"{r['system']}: {len(r['days'])} held-out days; mean ± std (cut at 100 %) per controller, faint: days",
+                 fontsize=11)  # fmt: skip
+    ax.set_ylim(top=101.0)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
