@@ -77,7 +77,8 @@ def twin_run(
     system: SystemOpt = "lcopt-5",
     trace: Annotated[str, typer.Option(help="frontier-2024-04-07, synthetic:SEED or a CSV path")] = "frontier-2024-04-07",
     hours: Annotated[float, typer.Option(help="simulated hours (capped at the trace length)")] = 24.0,
-    controller: Annotated[str, typer.Option(help="static, g36, ppo, tree or llm")] = "static",
+    controller: Annotated[str, typer.Option(help="static, g36, rule, lookahead, ppo, tree, llm, or a third-party "
+                                            "package.module:Class (docs/controllers.md)")] = "static",  # fmt: skip
     policy: Annotated[Optional[str], typer.Option(help="policy file for ppo/tree/llm (default: the shipped one)")] = None,
     scenario: ScenarioOpt = "frontier",
     wet_bulb_offset: Annotated[float, typer.Option(help="K added to the wet bulb, on top of the scenario's")] = 0.0,
@@ -123,6 +124,9 @@ def twin_run(
         f"d_blade {k['d_blade_pct']:.2f} %  CT {k['ct_power_kw_avg']:.1f} kW  IT cooling {k['it_cooling_kw_avg']:.0f} kW"
         f"  energy balance {k['energy_balance_error_pct']:.2e} %  {result.realtime_factor:,.0f}x real time"
     )
+    if result.controller_cost is not None:
+        cost = result.controller_cost
+        console.print(f"{result.controller} simulated {cost['sim_steps']:,} plant steps in {cost['wall_s']:.1f} s")
     write_json(json_out, data)
 
 

@@ -54,6 +54,7 @@ def _check_endpoints(field: str, endpoints: list[str]) -> list[str]:
 
 
 EndpointList = Annotated[list[str], NoDecode]
+PluginList = Annotated[list[str], NoDecode]
 
 
 class _Component(BaseModel):
@@ -170,6 +171,9 @@ class MeshSettings(BaseSettings):
                                      "scenario's")
     speed_factor: float = Field(60.0, gt=0, le=100_000, description="simulated seconds per wall second")
     controller: str = "tree"
+    controller_plugins: PluginList = Field([], description="third-party controllers ('package.module:Class') the "
+                                           "configuration may switch to; any other module:Class name is refused "
+                                           "(docs/controllers.md, Bring your own controller)")  # fmt: skip
     valve_exercise_s: float = Field(0.0, ge=0, le=86_400, description="stroke each CDU primary valve this often "
                                     "(plant seconds, 0: off); the initial config value")
     data_dir: Path = Path("runs/mesh")
@@ -197,10 +201,23 @@ class MeshSettings(BaseSettings):
 
         return scenario_named(name).name
 
-    @field_validator("router_endpoints", "listen_endpoints", "router_peers", "bus_tls_hosts", mode="before")
+    @field_validator("router_endpoints", "listen_endpoints", "router_peers", "bus_tls_hosts", "controller_plugins",
+                     mode="before")  # fmt: skip
     @classmethod
     def _lists(cls, value: object) -> object:
         return _split_list(value)
+
+    @field_validator("controller_plugins")
+    @classmethod
+    def _plugin_names(cls, names: list[str]) -> list[str]:
+        if not names:
+            return names
+        from lcmesh.twin.controllers import PLUGIN_PATTERN
+
+        for name in names:
+            if not re.match(PLUGIN_PATTERN, name):
+                raise ValueError(f"`controller_plugins` entries must look like 'package.module:Class', got {name!r}")
+        return names
 
     @model_validator(mode="after")
     def _endpoints(self) -> "MeshSettings":
@@ -210,6 +227,12 @@ class MeshSettings(BaseSettings):
         if not self.router_endpoints:
             raise ValueError("`router_endpoints` must name at least one router, e.g. 'tcp/127.0.0.1:7447'")
         return self
+
+    @property
+    def allowed_controller_plugins(self) -> list[str]:
+        """Third-party controllers the mesh may load: ``controller_plugins`` and this process's own ``controller``."""
+        own = [self.controller] if ":" in self.controller else []
+        return [*self.controller_plugins, *own]
 
     @property
     def history_file(self) -> Path:

@@ -165,6 +165,23 @@ class Plant:
         self._initial = self.runner.save_state()
         self.n_steps_done = 0
 
+    def restart(self) -> dict[str, np.ndarray]:
+        """Back to the FMU's initial state, forgetting any spun-up state; the faults and deviations set stay set.
+
+        A run that starts here does not depend on what the plant ran before (cells staged on, integrators).
+        """
+        if self._initial is not None:
+            self.runner.free_state(self._initial)
+            self._initial = None
+        self.runner.reset()
+        for channel, mirror in ((self._faults, self.faults), (self._deviations, self.deviations)):
+            if channel is not None:
+                channel.values[:] = np.concatenate([array.ravel() for array in _input_arrays(mirror)])
+                channel.write()
+        self._outputs.read()
+        self.n_steps_done = 0
+        return self.out
+
     def reset(self) -> dict[str, np.ndarray]:
         """Back to the spun-up state (or the FMU's initial state), without re-loading."""
         if self._initial is not None:

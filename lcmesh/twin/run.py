@@ -29,6 +29,7 @@ class RunResult:
     system: str
     trace: str
     controller: str
+    controller_cost: dict | None = None  # a controller that simulates ahead: plant steps and seconds it took
     series: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
     cabinet0: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
 
@@ -45,6 +46,7 @@ class RunResult:
             "system": self.system,
             "trace": self.trace,
             "controller": self.controller,
+            **({"controller_cost": self.controller_cost} if self.controller_cost is not None else {}),
         }
 
 
@@ -58,12 +60,22 @@ def run_twin(
     record_every: int = 1,
     on_step: Callable[[int], None] | None = None,
 ) -> RunResult:
-    """Run `controller` on `plant` over `trace` (from its first step), after a spin-up at its first row."""
+    """Run `controller` on `plant` over `trace` (from its first step), after a spin-up at its first row.
+
+    With a spin-up the plant first restarts from the FMU's initial state (faults and deviations kept), so the
+    result does not depend on what the plant ran before.
+
+    A controller with an ``attach(plant, trace)`` method (the look-ahead) gets both before the spin-up.
+    """
     n_steps = trace.n_steps if n_steps is None else min(n_steps, trace.n_steps)
+    attach = getattr(controller, "attach", None)
+    if callable(attach):
+        attach(plant, trace)
     power = np.zeros(plant.system.n_blade_groups)
     controller.reset()
     first = Observation(plant.out, float(trace.wet_bulb_k[0]), trace.blade_power_w(0, out=power), 0.0)
     if spinup_hours > 0:
+        plant.restart()
         plant.spin_up(power, first.wet_bulb_k, controller.act(first), hours=spinup_hours)
     out = plant.reset()
     controller.reset()
@@ -89,9 +101,17 @@ def run_twin(
         system=plant.system.name,
         trace=trace.name,
         controller=getattr(controller, "name", type(controller).__name__),
+        controller_cost=_controller_cost(controller),
         series=rec.series(),
         cabinet0=rec.cabinet0(),
     )
+
+
+def _controller_cost(controller: Controller) -> dict | None:
+    """What a simulating controller reports of its own cost (``sim_steps``, ``wall_s``), else None."""
+    if not hasattr(controller, "sim_steps"):
+        return None
+    return {"sim_steps": int(controller.sim_steps), "wall_s": float(getattr(controller, "wall_s", 0.0))}
 
 
 class _Recorder:

@@ -132,3 +132,19 @@ def test_non_finite_inputs_fall_back_instead_of_poisoning_the_state(plant):
     assert np.isfinite(plant.out["blade_temp_k"]).all()
     assert out["applied_supply_setpoint_k"][0] == pytest.approx(plant.system.cabinets.cdu.supply_temp_setpoint_k)
     np.testing.assert_allclose(out["applied_valve_fraction"][1], [1 / 3, 1 / 3, 1 / 3])
+
+
+def test_a_run_does_not_depend_on_what_the_plant_ran_before(lcopt5):
+    from lcmesh.twin.controllers import make_controller
+    from lcmesh.twin.run import run_twin
+    from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+
+    trace = load_trace(FRONTIER_DAY, lcopt5, hours=1)
+    with Plant(lcopt5) as fresh, Plant(lcopt5) as used:
+        run_twin(used, load_trace(FRONTIER_DAY, lcopt5, scenario="design-day", hours=2), make_controller("static", lcopt5))
+        used.set_faults(pump_degradation=[0.7, 0, 0, 0, 0])
+        fresh.set_faults(pump_degradation=[0.7, 0, 0, 0, 0])
+        a = run_twin(fresh, trace, make_controller("g36", lcopt5)).kpi
+        b = run_twin(used, trace, make_controller("g36", lcopt5)).kpi
+        assert a == b
+        assert used.faults.pump_degradation[0] == 0.7  # the faults set survive the restart

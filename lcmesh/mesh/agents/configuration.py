@@ -14,10 +14,10 @@ field and what would be valid.
 
 from __future__ import annotations
 
-import difflib
 import json
 import logging
 import threading
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -71,8 +71,10 @@ def _diff(old: Any, new: Any, path: str = "") -> dict[str, list]:
 class ConfigStore:
     """The configuration's versions: validation, persistence, audit."""
 
-    def __init__(self, path: Path, seed: MeshConfig, system: SystemDescription | None, history: HistoryWriter | None):
+    def __init__(self, path: Path, seed: MeshConfig, system: SystemDescription | None, history: HistoryWriter | None,
+                 controller_plugins: Collection[str] = ()):  # fmt: skip
         self.path, self.system, self.history = Path(path), system, history
+        self.controller_plugins = tuple(controller_plugins)  # third-party controllers the mesh may load
         self._lock = threading.Lock()
         if self.path.exists():
             self.doc = ConfigDoc.model_validate_json(self.path.read_text())
@@ -105,18 +107,16 @@ class ConfigStore:
             write_private(self.path, self.doc.model_dump_json(indent=2))
 
     def validate(self, data: dict) -> MeshConfig:
-        """A MeshConfig from `data`, checked against the controller registry and the plant."""
-        from lcmesh.twin.controllers import REGISTRY
+        """A MeshConfig from `data`, checked against the controller registry (and allowed plugins) and the plant."""
+        from lcmesh.twin.controllers import mesh_refusal
 
         try:
             config = MeshConfig.model_validate(data)
         except ValidationError as exc:
             raise QueryError(format_errors(exc)) from None
-        if config.controller not in REGISTRY:
-            close = difflib.get_close_matches(config.controller, REGISTRY, n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            known = ", ".join(sorted(REGISTRY))
-            raise QueryError(f"`controller` must be one of {known}, got {config.controller!r}{hint}")
+        problem = mesh_refusal(config.controller, self.controller_plugins)
+        if problem is not None:
+            raise QueryError(f"`controller` {problem}")
         if config.mode == "manual" and config.manual_action is None:
             raise QueryError("`mode` 'manual' needs `manual_action` (setpoints for every cabinet and tower)")
         if self.system is not None:
@@ -177,7 +177,7 @@ class ConfigurationAgent(Agent):
             log.warning("system %r does not load (%s); guardrails are not checked against a plant", s.system, exc)
             system = None
         path = s.configuration.store_path or s.data_dir / "config.json"
-        self.store = ConfigStore(path, default_config(s), system, self.history)
+        self.store = ConfigStore(path, default_config(s), system, self.history, s.allowed_controller_plugins)
         log.info("configuration version %d from %s", self.store.doc.version, path)
         for name in CONFIG_SECTIONS:
             self.serve(keys.config(self.site, name), lambda payload, name=name: self._read(name, payload))

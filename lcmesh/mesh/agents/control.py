@@ -13,7 +13,8 @@ one-item mailbox (stale states are skipped, not queued) and, while a decision is
 controller's last action is re-sent for each new step, so the Sensor never falls back for want of it.
 
 The controller follows the Configuration agent's ``controller``; one that can not load (not
-trained yet, unknown) is replaced by G36 with a warning event.
+trained yet, unknown, a third-party ``module:Class`` not listed in ``controller_plugins``, or one
+that needs the plant and the trace, like ``lookahead``) is replaced by G36 with a warning event.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import importlib
 import logging
 import threading
 import time
+from collections.abc import Collection
 
 import numpy as np
 
@@ -32,7 +34,7 @@ from lcmesh.mesh.messages import (
     ActionModel, AppliedAction, Explanation, FactModel, MeshConfig, PlantState, Proposal, new_id,
     plant_state_to_observation, utc_now,
 )  # fmt: skip
-from lcmesh.twin.controllers import Controller, Observation, make_controller
+from lcmesh.twin.controllers import Controller, ControllerError, Observation, make_controller, mesh_refusal
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription, load_system
 
@@ -41,14 +43,21 @@ FALLBACK_CONTROLLER = "g36"
 _K = 273.15
 
 
-def build_controller(name: str, system: SystemDescription) -> tuple[Controller, str | None]:
+def build_controller(
+    name: str, system: SystemDescription, allowed_plugins: Collection[str] = ()
+) -> tuple[Controller, str | None]:
     """`name`'s controller, or G36 and a note saying why `name` could not be used.
 
-    A learned policy trained for another cell count per tower runs with its cells pooled (noted).
+    A third-party ``module:Class`` is imported only when `allowed_plugins` (the settings'
+    ``allowed_controller_plugins``) lists it. A learned policy trained for another cell count per tower
+    runs with its cells pooled (noted).
     """
     from lcmesh.distill.features import LayoutMismatch
 
     try:
+        problem = mesh_refusal(name, allowed_plugins)
+        if problem is not None:
+            raise ControllerError(f"`controller` {problem}")
         try:
             return make_controller(name, system), None
         except LayoutMismatch as exc:
@@ -183,7 +192,9 @@ class ControlAgent(Agent):
         self._applied.set()
 
     def _use_controller(self, name: str) -> None:
-        self.controller, self.controller_note = build_controller(name, self.system)
+        self.controller, self.controller_note = build_controller(
+            name, self.system, self.settings.allowed_controller_plugins
+        )
         self.controller.reset()
         if self.controller_note:
             log.warning("%s", self.controller_note)

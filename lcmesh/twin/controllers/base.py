@@ -22,6 +22,14 @@ class Observation:
 
 
 class Controller(Protocol):
+    """What every controller provides. ``make_controller`` checks it for third-party classes.
+
+    One optional hook: ``attach(plant, trace)``. ``lcmesh.twin.run.run_twin`` calls it, when the controller
+    has it, before the spin-up, with the running plant and the whole trace; a controller that simulates ahead
+    (``lookahead``) keeps them. The mesh never calls it, so the mesh refuses controllers that need it
+    (``NEEDS_PLANT``).
+    """
+
     name: str
     version: str
 

@@ -173,7 +173,8 @@ def create_app(ctx: UiContext) -> FastAPI:
     routes = [r for module in (read, control, chat, stream) for r in module.router.routes]
     api_routes = [r for r in routes if isinstance(r, APIRoute)]
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
-    app.openapi = functools.cache(lambda: site_openapi(app, ctx.system, ctx.ui))  # FastAPI's documented override
+    plugins = ctx.settings.allowed_controller_plugins  # FastAPI's documented override of the document:
+    app.openapi = functools.cache(lambda: site_openapi(app, ctx.system, ctx.ui, plugins))
     # the last added runs first: Host allow-list, CORS, latency, body limit, token, then the routes
     app.add_middleware(WriteAuth, routes=routes_needing(api_routes, control.require_token),
                        token=lambda: ctx.token.value)  # fmt: skip

@@ -7,7 +7,8 @@ The request models are static; the UI serving a plant knows more, and says it so
   ``cabinets`` count 1..C;
 - ``ChatQuestion.message``: at most ``LCMESH_UI_CHAT_MAX_CHARS`` characters;
 - ``ConfigChange.changes``: the keys and value types of the configuration (a partial ``MeshConfig``:
-  nested sections merge, so nothing is required), the controller one of the registry, a manual
+  nested sections merge, so nothing is required), the controller one the mesh runs (the registry less
+  ``NEEDS_PLANT``, plus the allowed ``controller_plugins``; ``ModeRequest.controller`` likewise), a manual
   action shaped for this plant, ``valve_fraction_min`` at most 1 / branches, ``valve_exercise_s``
   0 or at least 60. Rules between fields (``supply_temp_min_k`` below ``supply_temp_max_k``) are
   the Configuration agent's, checked on the merged document (422 naming the fields).
@@ -17,20 +18,23 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Sequence
 from typing import Any
 
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 
 from lcmesh.mesh.agents.ui.config import UiSettings
+from lcmesh.mesh.agents.ui.schemas import MESH_CONTROLLERS
 from lcmesh.mesh.messages import MeshConfig
 from lcmesh.mesh.settings import MIN_VALVE_EXERCISE_S
-from lcmesh.twin.controllers import REGISTRY
 from lcmesh.twin.system import SystemDescription
 
 
-def site_openapi(app: FastAPI, system: SystemDescription, ui: UiSettings) -> dict[str, Any]:
-    """The OpenAPI document of `app` serving `system` with the limits of `ui`."""
+def site_openapi(
+    app: FastAPI, system: SystemDescription, ui: UiSettings, controller_plugins: Sequence[str] = ()
+) -> dict[str, Any]:
+    """The OpenAPI document of `app` serving `system` with the limits of `ui` and the allowed third-party controllers."""
     doc = get_openapi(title=app.title, version=app.version, summary=app.summary, description=app.description,
                       routes=app.routes)  # fmt: skip
     schemas = doc["components"]["schemas"]
@@ -50,8 +54,11 @@ def site_openapi(app: FastAPI, system: SystemDescription, ui: UiSettings) -> dic
         if option.get("type") == "array":
             option["items"]["maximum"] = C
     schemas["ChatQuestion"]["properties"]["message"]["maxLength"] = ui.chat_max_chars
+    controllers = {"type": "string", "enum": [*MESH_CONTROLLERS, *controller_plugins]}
+    mode = schemas["ModeRequest"]["properties"]["controller"]
+    mode["anyOf"] = [controllers, {"type": "null"}]
     changes = schemas["ConfigChange"]["properties"]["changes"]
-    schemas["ConfigChange"]["properties"]["changes"] = {**_config_changes(C, B, N), "description":
+    schemas["ConfigChange"]["properties"]["changes"] = {**_config_changes(C, B, N, controllers), "description":
                                                         changes.get("description", "")}  # fmt: skip
     _drop_unused(doc)
     return doc
@@ -70,12 +77,13 @@ def _drop_unused(doc: dict[str, Any]) -> None:
             del schemas[name]
 
 
-def _config_changes(C: int, B: int, N: int) -> dict[str, Any]:
+def _config_changes(C: int, B: int, N: int, controllers: dict[str, Any]) -> dict[str, Any]:
     """JSON Schema of a partial MeshConfig for a plant of C cabinets of B branches and N towers."""
     full = MeshConfig.model_json_schema()
     partial = _inline(full, full.get("$defs", {}))
     props = partial["properties"]
-    props["controller"]["enum"] = sorted(REGISTRY)
+    props["controller"] = {**controllers, "description": "a registered controller the mesh runs, or a "
+                           "'package.module:Class' listed in LCMESH_CONTROLLER_PLUGINS"}  # fmt: skip
     props["valve_exercise_s"] = {"anyOf": [{"const": 0}, {**props["valve_exercise_s"], "minimum": MIN_VALVE_EXERCISE_S}],
                                  "description": props["valve_exercise_s"].get("description", "")}  # fmt: skip
     props["guardrails"]["properties"]["valve_fraction_min"]["maximum"] = 1.0 / B  # every branch gets v_min at once

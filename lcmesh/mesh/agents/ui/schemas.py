@@ -6,7 +6,6 @@ count from 1. Inside the mesh everything stays SI.
 
 from __future__ import annotations
 
-import difflib
 import typing
 from typing import Annotated, Any, Literal
 
@@ -14,7 +13,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 
 from lcmesh.mesh.agents.ui.facts import ChatFact
 from lcmesh.mesh.messages import MeshConfig
-from lcmesh.twin.controllers import REGISTRY
+from lcmesh.twin.controllers import NEEDS_PLANT, PLUGIN_PATTERN, REGISTRY, is_plugin, mesh_refusal
 
 
 def _integer(value: object) -> object:
@@ -274,6 +273,13 @@ def _at_least_one(*fields: str) -> dict:
 
 
 MODE_FIELDS = ("controller", "mode")
+MESH_CONTROLLERS = tuple(sorted(set(REGISTRY) - NEEDS_PLANT))
+
+
+def controller_schema() -> dict:
+    """JSON Schema of a controller name in the mesh: a registered one it runs, or a 'package.module:Class'."""
+    registered = {"type": "string", "enum": list(MESH_CONTROLLERS)}
+    return {"anyOf": [registered, {"type": "string", "pattern": PLUGIN_PATTERN}]}
 
 
 class ModeRequest(_In):
@@ -281,9 +287,11 @@ class ModeRequest(_In):
 
     model_config = ConfigDict(json_schema_extra=_at_least_one(*MODE_FIELDS))
 
-    controller: Literal[tuple(sorted(REGISTRY))] | None = Field(  # type: ignore[valid-type]
-        None, description="a registered controller"
-    )
+    controller: str | None = Field(
+        None, description="a registered controller the mesh runs, or a third-party 'package.module:Class' listed in "
+        "LCMESH_CONTROLLER_PLUGINS (the Configuration agent checks the list)",
+        json_schema_extra={"anyOf": [*controller_schema()["anyOf"], {"type": "null"}]},
+    )  # fmt: skip
     mode: Literal["auto", "manual"] | None = Field(None, description="manual holds the current action unless "
                                                    "setpoints are sent to /api/control/setpoints")  # fmt: skip
     reason: str = Field("", max_length=500)
@@ -291,10 +299,10 @@ class ModeRequest(_In):
     @field_validator("controller", mode="before")
     @classmethod
     def _known(cls, value: object) -> object:
-        if isinstance(value, str) and value not in REGISTRY:
-            close = difflib.get_close_matches(value, REGISTRY, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise ValueError(f"must be one of {', '.join(sorted(REGISTRY))}{hint}")
+        if isinstance(value, str):  # a plugin's allow-list is the Configuration agent's to check (422 from there)
+            problem = mesh_refusal(value, allowed_plugins=(value,) if is_plugin(value) else ())
+            if problem is not None:
+                raise ValueError(problem)
         return value
 
     @model_validator(mode="after")
