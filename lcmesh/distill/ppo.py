@@ -155,7 +155,6 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     """Train ``cfg.case``; write the run folder; return a summary (best validation KPIs, paths)."""
     from lcmesh.twin.plant import Plant
     from lcmesh.twin.run import run_twin
-    from lcmesh.twin.system import load_system
     from lcmesh.twin.traces import load_trace
 
     torch.manual_seed(cfg.seed)
@@ -166,7 +165,7 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     (out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
     seed_order = np.random.default_rng(cfg.seed).permutation(np.asarray(TRAIN_SEEDS))
     plants = TrainPlants(cfg.system, itertools.cycle(int(s) for s in seed_order), cfg.n_envs, cfg.episode_steps,
-                         scenarios=cfg.scenario_list())  # fmt: skip
+                         scenarios=cfg.scenario_list(), reward=cfg.reward)  # fmt: skip
     system = plants.system
     trainers = build_trainers(cfg, plants)
     case = CASES[cfg.case]
@@ -224,7 +223,8 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
                 ctrl = PpoController(system, loaded=(nets, meta(std, {})))
                 runs = [run_twin(eval_plant, tr, ctrl).kpi for tr in eval_traces]
                 kpi = {k: float(np.mean([r[k] for r in runs])) for k in ("d_blade_pct", "ct_power_kw_avg", "pump_power_kw_avg")}
-                score = kpi["d_blade_pct"] - cfg.eval_ct_weight_per_kw * kpi["ct_power_kw_avg"]
+                score = (kpi["d_blade_pct"] - cfg.eval_ct_weight_per_kw * kpi["ct_power_kw_avg"]
+                         - cfg.eval_pump_weight_per_kw * kpi["pump_power_kw_avg"])  # fmt: skip
                 row.update({"val_d_blade_pct": kpi["d_blade_pct"], "val_ct_power_kw": kpi["ct_power_kw_avg"], "val_score": score})
                 metrics = {"validation": {"trace": cfg.eval_trace, "hours": cfg.eval_hours, **kpi}, "update": update + 1,
                            "env_steps": (update + 1) * steps_per_update, "wall_s": row["wall_s"]}  # fmt: skip

@@ -69,7 +69,12 @@ class PpoConfig:
     checkpoint selection: never a training seed and never a test day (lcmesh/bench/suite.py)."""
     eval_hours: float = 24.0
     eval_ct_weight_per_kw: float = 0.02
-    """Checkpoint score = d_blade_pct - this * ct_power_kw_avg (2 points per 100 kW of fans)."""
+    """Checkpoint score = d_blade_pct - this * ct_power_kw_avg (2 points per 100 kW of fans) - ..."""
+    eval_pump_weight_per_kw: float = 0.0
+    """... - this * pump_power_kw_avg (pumps: CDU, hot water, tower water)."""
+    reward: str = "lcopt"
+    """Training reward (lcmesh/distill/ppo_env.py): ``lcopt`` (the shipped policies') or ``energy`` (the band, then
+    the cooling energy: what the suite scores)."""
     threads: int = 1
     """torch threads (the envs step on one core; more threads rarely help nets this small)."""
     out: str = "runs/ppo"
@@ -89,6 +94,8 @@ class PpoConfig:
         return days
 
     def __post_init__(self) -> None:
+        if self.reward not in ("lcopt", "energy"):
+            raise ValueError(f"`reward` must be 'lcopt' or 'energy', got {self.reward!r}")
         if not self.scenario_list():
             raise ValueError("`scenarios` must name at least one scenario (e.g. 'lcopt' or 'frontier,design-day')")
         from lcmesh.twin.traces import scenario_named  # numpy only: the CLI stays fast

@@ -10,6 +10,15 @@ baseline. Rewards (per cabinet and per tower) are written for this problem's KPI
 - tower j: ``-sum of its cells' fan power / (m * nominal)`` (LC-Opt eq. 17, scaled)
   ``- 3 * mean over all blade groups of max(0, T_g - 38.5 degC)``: the towers share the blades'
   overheating, otherwise a fan-power-only tower agent starves the CDUs of cold water.
+
+That is reward ``"lcopt"``, the shipped policies'. Reward ``"energy"`` asks for what the benchmark scores,
+the look-ahead controller's cost in per-step form: the band, then the cooling energy.
+
+- cabinet i: ``-5 * share of its blade groups outside 20-40 degC - mean_g max(0, T_g - 38.5 degC)
+  - 0.3 * CDU pump power / its power at the design dp - 0.3 * primary flow / its maximum`` (the
+  hot-water pumping a cabinet causes) ``- 0.5 * valve term``: no reward for running colder than needed;
+- tower j: ``-fan power / (m * nominal) - 3 * mean overheat - 5 * share of all blade groups outside
+  the band``.
 """
 
 from __future__ import annotations
@@ -20,21 +29,33 @@ import numpy as np
 
 from lcmesh.distill.features import FeatureBuilder, TowerSetpoints, decode_cabinet
 from lcmesh.twin.controllers.g36 import G36Controller
-from lcmesh.twin.envs.episode import EpisodeConfig, EpisodeDriver
+from lcmesh.twin.envs.episode import KPI_BAND_K, EpisodeConfig, EpisodeDriver
 from lcmesh.twin.plant import PlantAction
 
 OVERHEAT_MARGIN_K = 273.15 + 38.5
 TEMP_REF_K = 273.15 + 35.0
 VALVE_TERM_WEIGHT = 0.5
 TOWER_OVERHEAT_WEIGHT = 3.0
+BAND_WEIGHT = 5.0
+ENERGY_WEIGHT = 0.3
+REWARDS = ("lcopt", "energy")
 
 
 class TrainPlants:
     """E plants with their baseline, tower setpoint holder and feature builder."""
 
     def __init__(
-        self, system: str, seeds: Iterator[int], n_envs: int, episode_steps: int, scenarios: tuple[str, ...] = ("lcopt",)
+        self,
+        system: str,
+        seeds: Iterator[int],
+        n_envs: int,
+        episode_steps: int,
+        scenarios: tuple[str, ...] = ("lcopt",),
+        reward: str = "lcopt",
     ):
+        if reward not in REWARDS:
+            raise ValueError(f"`reward` must be one of {REWARDS}, got {reward!r}")
+        self.reward = reward
         self.seeds = seeds
         self.episode_steps = episode_steps
         self.scenarios = scenarios
@@ -117,14 +138,14 @@ class TrainPlants:
                 "in_band": in_band, "ct_fan_kw": fan_kw}  # fmt: skip
 
     def _rewards(self, out, action: PlantAction) -> tuple[np.ndarray, np.ndarray]:
-        return step_rewards(self.system, out, action)
+        return step_rewards(self.system, out, action, self.reward)
 
     def close(self) -> None:
         for d in self.drivers:
             d.close()
 
 
-def step_rewards(system, out, action: PlantAction) -> tuple[np.ndarray, np.ndarray]:
+def step_rewards(system, out, action: PlantAction, reward: str = "lcopt") -> tuple[np.ndarray, np.ndarray]:
     """Per-cabinet (C,) and per-tower (N,) rewards of the step just taken (see the module docstring)."""
     cab, tw = system.cabinets, system.towers
     C, B, N, m = cab.count, cab.branches, tw.count, tw.cells
@@ -133,11 +154,27 @@ def step_rewards(system, out, action: PlantAction) -> tuple[np.ndarray, np.ndarr
     power = out["branch_power_w"].reshape(C, B)
     share = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
     valve_term = np.abs(action.valve_fractions - share).sum(axis=1)
+    fans = out["cell_fan_power_w"].reshape(N, m).sum(axis=1) / (m * tw.cell.fan_power_nominal_w)
+    if reward == "energy":
+        lo, hi = KPI_BAND_K
+        outside = ((blade < lo) | (blade > hi)).mean(axis=1)
+        pump = out["cdu_pump_power_w"] / _design_pump_w(system)
+        primary = out["primary_flow_kg_s"] / cab.cdu.primary_flow_max_kg_s
+        cabinet = (-BAND_WEIGHT * outside - overheat - ENERGY_WEIGHT * pump - ENERGY_WEIGHT * primary
+                   - VALVE_TERM_WEIGHT * valve_term)  # fmt: skip
+        tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean() - BAND_WEIGHT * outside.mean()
+        return cabinet, tower
     mean_t = out["branch_temp_k"].reshape(C, B).mean(axis=1)
     cabinet = -0.1 * (mean_t - TEMP_REF_K) - overheat - VALVE_TERM_WEIGHT * valve_term
-    fans = out["cell_fan_power_w"].reshape(N, m).sum(axis=1) / (m * tw.cell.fan_power_nominal_w)
     tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean()
     return cabinet, tower
+
+
+def _design_pump_w(system) -> float:
+    """A CDU pump's power at the description's design dp (the unit of the energy reward's pump term)."""
+    cdu = system.cabinets.cdu
+    flow = cdu.dp_setpoint_pa / cdu.r_cabinet_pa_per_kg_s
+    return (cdu.r_hx_secondary_pa_per_kg_s + cdu.r_cabinet_pa_per_kg_s) * flow**2 / (997.0 * cdu.pump.efficiency)
 
 
 def episode_rewards(controller, system_name: str, seeds, steps: int = 200, wet_bulb_offset_k: float = 15.0) -> dict:
