@@ -88,7 +88,8 @@ def plant(lcopt5):
 
 
 def g36_decision_state(system, steps: int):
-    """(out, action, previous action, wet bulb) of G36's decision `steps` steps into the Frontier day (+15 K).
+    """(out, action, previous action, wet bulb) of G36's decision `steps` steps into the Frontier day (the mesh's
+    default scenario: real loads and wet bulb).
 
     `out` and the actions are copies, valid after the plant is closed.
     """
@@ -98,7 +99,7 @@ def g36_decision_state(system, steps: int):
     from lcmesh.twin.plant import Plant
     from lcmesh.twin.traces import FRONTIER_DAY, load_trace
 
-    trace = load_trace(FRONTIER_DAY, system, wet_bulb_offset_k=15.0)
+    trace = load_trace(FRONTIER_DAY, system)
     controller = make_controller("g36", system)
     power = np.zeros(system.n_blade_groups)
     with Plant(system) as plant:

@@ -1,15 +1,15 @@
 """``lcmesh bench maintenance``: detection rate, delay and false alarms of the fault detector on simulated days.
 
-Each run is lcopt-5 under the G36 controller on one day (the Frontier day with the LC-Opt +15 K wet bulb,
-and seeded synthetic days from the evaluation split). A fault of one kind is injected at a random step
-(1 h to 20 h into the day), location and size; the detector sees the plant outputs through a seeded
-sensor-noise model. A second twin without the fault runs in lockstep from the injection step (same
-inputs, a copy of the controller) to find when the fault first *shows*: a valve stuck where the healthy
-valve would be anyway, or a spare cell taken out while the tower does not need it, changes nothing until
-the operating point moves. "Shows" means: pump speed or flow differ (pump), the measured supply differs
-(sensor bias), the true supply temperature differs by more than the valve loop's own deadband (stuck
-valve), a cell's fan power or heat differs by more than 1 % of nominal (cell out). Delays are reported
-from injection and from that moment.
+Each run is lcopt-5 under the G36 controller on one day (the Frontier day and seeded synthetic days from the
+evaluation split, all in the default "frontier" scenario: real CDU loads and the day's own wet bulb). A
+fault of one kind is injected at a random step (1 h to 20 h into the day), location and size; the detector
+sees the plant outputs through a seeded sensor-noise model. A second twin without the fault runs in lockstep
+from the injection step (same inputs, a copy of the controller) to find when the fault first *shows*: a
+valve stuck where the healthy valve would be anyway, or a spare cell taken out while the tower does not need
+it, changes nothing until the operating point moves. "Shows" means: pump speed or flow differ (pump), the
+measured supply differs (sensor bias), the true supply temperature differs by more than the valve loop's own
+deadband (stuck valve), a cell's fan power or heat differs by more than 1 % of nominal (cell out). Delays
+are reported from injection and from that moment.
 
 Every run is made on the matched plant (the twin is the detector's model) and, with the same injections
 and noise, on a mismatched plant (:mod:`lcmesh.bench.mismatch`: parameters 10-20 % off, fouling, sensor
@@ -40,7 +40,7 @@ from lcmesh.twin.controllers import Observation, make_controller
 from lcmesh.twin.fmu_runner import FmuState
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.system import SystemDescription, load_system
-from lcmesh.twin.traces import EVAL_SEEDS, FRONTIER_DAY, Trace, load_trace
+from lcmesh.twin.traces import DEFAULT_SCENARIO, EVAL_SEEDS, FRONTIER_DAY, Trace, load_trace, scenario_named
 
 TARGETS = {"detection_rate": 0.90, "median_delay_min": 10.0, "false_alarms_per_day": 1.0}
 _NOISELESS = ("cells_active", "stored_energy_j", "stored_energy_change_j", "energy_in_j", "energy_rejected_j",
@@ -327,13 +327,13 @@ def run_bench_maintenance(
     seeds = seeds if seeds is not None else (1 if quick else 3)
     first = n_synthetic if held_out else 0
     synthetic = list(EVAL_SEEDS)[first : first + n_synthetic]
-    days = [(FRONTIER_DAY, 15.0)] + [(f"synthetic:{s}", 0.0) for s in synthetic]
+    days = [FRONTIER_DAY, *(f"synthetic:{s}" for s in synthetic)]
     noise = SensorNoise().scaled(noise_scale)
-    traces = {spec: load_trace(spec, system, wet_bulb_offset_k=offset) for spec, offset in days}
+    traces = {spec: load_trace(spec, system, scenario=DEFAULT_SCENARIO) for spec in days}
     rng = np.random.default_rng(20240407 + held_out)
     mismatch_seed = _MISMATCH_SEED + held_out
     plan = []  # (trace, injection, noise seed, mismatch)
-    for spec, _ in days:
+    for spec in days:
         for kind in (None, *(k for k in FAULT_KINDS for _ in range(seeds))):
             trace = traces[spec]
             injection = sample_injection(kind, system, trace.n_steps, rng) if kind else None
@@ -361,7 +361,8 @@ def run_bench_maintenance(
         "machine": machine_info(),
         "system": system.name,
         "controller": "g36",
-        "days": [f"{spec} (wet bulb {offset:+.0f} K)" for spec, offset in days],
+        "days": days,
+        "trace_scenario": DEFAULT_SCENARIO,
         "injections_per_day_and_kind": seeds,
         "held_out": held_out,
         "valve_exercise_s": valve_exercise_s,
@@ -411,7 +412,10 @@ def render_maintenance(r: dict) -> str:
         "--markdown BENCHMARKS.md`)",
         "",
         f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; Python {m['python']}; commit {m['commit']}; "
-        f"{m['date']}. {r['system']} under {r['controller']}; days: {', '.join(r['days'])}; "
+        f"{m['date']}. {r['system']} under {r['controller']}; days: {', '.join(r['days'])}"
+        + (f" (scenario {r['trace_scenario']}, {scenario_named(r['trace_scenario']).description})"
+           if r.get("trace_scenario") else "")
+        + "; "
         + ("held out (days, injections and plants not used while tuning the detector); " if r.get("held_out") else "")
         + f"{r['injections_per_day_and_kind']} injection(s) per day and fault kind at random times (1-20 h), "
         f"locations and sizes; sensor noise on every reading (docs/maintenance.md); "

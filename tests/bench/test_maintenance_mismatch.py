@@ -12,7 +12,13 @@ import lcmesh.bench.maintenance as bench
 import lcmesh.mesh.tools.maintenance as detector_module
 from lcmesh.bench.maintenance import NOMINAL_DETECTOR, Injection, SensorNoise, run_day
 from lcmesh.bench.mismatch import LoadStep, MismatchSpec, PlantMismatch
-from lcmesh.mesh.tools.thermo import CduPumpModel
+from lcmesh.mesh.tools.thermo import (
+    GRAVITY_M_S2,
+    RHO_WATER_KG_M3,
+    CduPumpModel,
+    cdu_hx_ua_w_k,
+    counterflow_heat_w,
+)
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.system import load_system
 from lcmesh.twin.traces import load_trace
@@ -20,24 +26,41 @@ from lcmesh.twin.traces import load_trace
 
 def test_deviation_inputs_change_the_plant_by_the_expected_amounts(plant):
     s = plant.system
-    action, power = plant.default_action(), np.full(s.n_blade_groups, 60e3)
+    cab = s.cabinets
+    # 0.8 of the design load: valves mid-stroke and the tower fans running (at a third of it they stand still)
+    action, power = plant.default_action(), np.full(s.n_blade_groups, 0.8 * cab.design_heat_w / cab.branches)
     for _ in range(120):
         plant.step(power, 290.0, action)
     nominal = {k: v.copy() for k, v in plant.out.items()}
     state = plant.save_state()
-    plant.set_deviations(pump_head_factor=[1, 0.85, 1.15, 1, 1], hx_ua_factor=[1, 1, 1, 0.85, 1],
+    head_factor = np.array([1, 0.85, 1.15, 1, 1])
+    plant.set_deviations(pump_head_factor=head_factor, hx_ua_factor=[1, 1, 1, 0.85, 1],
                          ct_approach_factor=[1.2, 1.0])  # fmt: skip
     for _ in range(120):
         out = plant.step(power, 290.0, action)
-    # the described curve's model sees the missing head: 1 - f at zero flow, (1 - f)(1 - b q^2 / a s^2) here
-    loss = CduPumpModel.from_system(s).head_loss(out["pump_speed"], out["secondary_flow_kg_s"])
-    assert loss[0] == pytest.approx(0.0, abs=1e-9)
-    assert 0.13 < loss[1] < 0.15 and -0.15 < loss[2] < -0.13  # measured 0.145 / -0.143
     assert out["secondary_flow_kg_s"] == pytest.approx(nominal["secondary_flow_kg_s"], rel=1e-3)  # dp loop holds it
-    # a weaker pump runs faster for it, a stronger one slower (measured 0.824 / 0.712 against 0.761)
-    speed, nominal_speed = out["pump_speed"], nominal["pump_speed"]
-    assert speed[1] > nominal_speed[1] + 0.04 and speed[2] < nominal_speed[2] - 0.04
-    assert out["primary_valve"][3] > nominal["primary_valve"][3] + 0.05  # a weaker HX: the valve opens further
+    # a curve f x the described one (H = f (c - k m^2), c = rho g a s^2) delivering the same flow against the same
+    # loop: the model sees the missing head (1 - f)(1 - k m^2 / (rho g a s^2)) (1 - f at zero flow) ...
+    pump = CduPumpModel.from_system(s)
+    speed, flow = out["pump_speed"], out["secondary_flow_kg_s"]
+    loss = pump.head_loss(speed, flow)
+    k_head = GRAVITY_M_S2 * pump.b_s2_m5 / (RHO_WATER_KG_M3 * pump.n_parallel**2) * flow**2
+    rho_g_a = RHO_WATER_KG_M3 * GRAVITY_M_S2 * pump.a_m
+    np.testing.assert_allclose(loss, (1 - head_factor) * (1 - k_head / (rho_g_a * speed**2)), atol=1e-6)
+    assert loss[1] > 0.1 and loss[2] < -0.1  # lcopt-5 at this load: 0.118 / -0.110
+    # ... and a weaker pump runs faster for it, a stronger one slower: s'^2 = s^2 / f + (k m^2 / (rho g a))(1 - 1/f)
+    expected_speed = np.sqrt(nominal["pump_speed"] ** 2 / head_factor + k_head / rho_g_a * (1 - 1 / head_factor))
+    np.testing.assert_allclose(speed, expected_speed, atol=1e-6)
+    # lcopt-5 at this load: 0.758 / 0.676 against 0.712 (the flow's k m^2 share of the head damps the change)
+    assert speed[1] > nominal["pump_speed"][1] + 0.04 and speed[2] < nominal["pump_speed"][2] - 0.03
+    # a weaker HX: the twin's heat is the toolbox's counter-flow heat at 0.85 of the described UA, and the valve
+    # opens further for it (measured 0.500 against 0.485)
+    for c, factor in ((0, 1.0), (3, 0.85)):
+        m_p, m_s = out["primary_flow_kg_s"][c], out["secondary_flow_kg_s"][c]
+        q_w = counterflow_heat_w(factor * cdu_hx_ua_w_k(s, m_p, m_s), m_s, out["return_temp_k"][c], m_p,
+                                 float(out["htw_supply_temp_k"]))  # fmt: skip
+        assert q_w == pytest.approx(out["cdu_heat_w"][c], rel=1e-5)
+    assert out["primary_valve"][3] > nominal["primary_valve"][3] + 0.01
     assert out["fan_speed"][0] > nominal["fan_speed"][0] + 0.02  # a worse tower fit: the fans work harder
     assert out["fan_speed"][1] == pytest.approx(nominal["fan_speed"][1], abs=0.005)
     plant.restore_state(state)  # deviations are inputs saved with the FMU state, like faults

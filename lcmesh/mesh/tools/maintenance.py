@@ -430,7 +430,9 @@ class FaultDetector:
             unexplained = (on < prev_on) & (self._stage_down_s < tw.stage_delay_s - cfg.cell_stage_slack_s)
             self._cell_suspect |= unexplained[:, None] & self._running(self._prev) & ~running
         speed, step_s = x["fan_speed"], dt_s or self.system.step_s
-        self._stage_down_s = np.where((speed < tw.stage_down_speed + 0.02) & (on > 1), self._stage_down_s + step_s, 0.0)
+        # a stage-down speed of 0 is never undercut (cells once on stay on): then no drop is explained
+        slow = (speed < tw.stage_down_speed + 0.02) if tw.stage_down_speed > 0 else np.zeros(self.N, bool)
+        self._stage_down_s = np.where(slow & (on > 1), self._stage_down_s + step_s, 0.0)
         self._stage_up_s = np.where((speed > tw.stage_up_speed + 0.01) & (on < self.m), self._stage_up_s + step_s, 0.0)
         # a healthy tower stages another cell after the delay; if it cannot, every idle cell is unavailable
         blocked = self._stage_up_s >= tw.stage_delay_s + cfg.cell_stage_slack_s

@@ -8,12 +8,17 @@ import pytest
 from lcmesh.mesh.tools.whatif import apply_delta, current_action, one_step_whatif
 from lcmesh.twin.plant import Plant
 
-LOAD_W = 60e3  # per branch: low enough that the primary valves modulate (not pinned open)
+LOAD_FRACTION = 0.8  # of the design branch load: the primary valves modulate mid-stroke (not pinned at a stop)
 WET_BULB_K = 290.0
 
 
+def _branch_w(system) -> float:
+    cab = system.cabinets
+    return LOAD_FRACTION * cab.design_heat_w / (cab.branches * cab.blade_groups_per_branch)
+
+
 def _settle(plant: Plant, steps: int = 400) -> tuple[np.ndarray, object]:
-    power = np.full(plant.system.n_blade_groups, LOAD_W)
+    power = np.full(plant.system.n_blade_groups, _branch_w(plant.system))
     action = plant.default_action()
     action.lw_setpoint_k[:] = WET_BULB_K + 4.0
     for _ in range(steps):
@@ -59,7 +64,7 @@ def test_a_zero_change_predicts_the_baseline_exactly(plant):
 
 def test_whatif_with_given_load_and_weather(plant):
     _settle(plant, 100)
-    hot = one_step_whatif(plant, {}, blade_power_w=np.full(15, 2 * LOAD_W), wet_bulb_k=300.0, steps=8)
+    hot = one_step_whatif(plant, {}, blade_power_w=np.full(15, 2 * _branch_w(plant.system)), wet_bulb_k=300.0, steps=8)
     calm = one_step_whatif(plant, {}, steps=8)
     assert np.all(hot["baseline"]["blade_temp_k"] > calm["baseline"]["blade_temp_k"] + 1.0)
 

@@ -18,21 +18,23 @@ from lcmesh.mesh.tools.facts import cabinet_decision_facts
 from lcmesh.twin.controllers import Observation, make_controller
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.system import load_system
-from lcmesh.twin.traces import FRONTIER_DAY, load_trace
+from lcmesh.twin.traces import FRONTIER_DAY, load_trace, scenario_named
 
 TESTSET = Path(__file__).resolve().parents[4] / "docs" / "examples" / "explain-eval"
 TARGETS = {"numeric_grounding": 0.98, "coverage": 1.0, "direction_consistency": 0.95}
 
 
 def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
-    """All figures of the explain benchmark (lcopt-5, G36, the Frontier day with the +15 K wet bulb)."""
+    """All figures of the explain benchmark (lcopt-5, G36, the Frontier day in the default scenario: real loads and
+    wet bulb)."""
     from lcmesh.bench.machine import machine_info
 
     system = load_system("lcopt-5")
     trace = load_trace(FRONTIER_DAY, system)
     hours = 2.0 if quick else 24.0
     n_steps = int(hours * 3600 / trace.step_s)
-    result: dict = {"machine": machine_info(), "system": system.name, "trace": trace.name, "controller": "g36",
+    result: dict = {"machine": machine_info(), "system": system.name, "trace": trace.name, "scenario": trace.scenario,
+                    "controller": "g36",
                     "load_average_1min_start": os.getloadavg()[0]}  # timings inflate on a shared machine
     with Plant(system) as plant:
         result["speed"] = _speed(plant, trace, repeats=1 if quick else 3)
@@ -118,8 +120,8 @@ def render_markdown_section(r: dict) -> str:
         "",
         f"Machine: {m.get('cpu')}, {m.get('logical_cpus')} logical CPUs; Python {m.get('python')}; commit "
         f"{m.get('commit')}; {m.get('date')}; load average {r.get('load_average_1min_start', 0):.1f} at the start "
-        f"(timings are medians of repeats, not pinned). {r['system']}, {r['controller']}, {r['trace']} "
-        "(+15 K wet bulb).",
+        f"(timings are medians of repeats, not pinned). {r['system']}, {r['controller']}, {r['trace']}"
+        + (f" (scenario {r['scenario']}, {scenario_named(r['scenario']).description})." if r.get("scenario") else "."),
         "",
         "| figure | measured | target |",
         "|---|---|---|",

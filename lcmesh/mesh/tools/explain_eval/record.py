@@ -17,6 +17,8 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from lcmesh.mesh.tools.facts import COP_REFERENCE, STABILITY_FULL_MARGIN_K
+
 K0 = 273.15
 PSI_TO_PA = 6894.757
 BAND_K = (293.15, 313.15)  # the 20-40 degC blade band (LC-Opt Section 6)
@@ -262,8 +264,11 @@ _FACT_UNITS = {
     "pa": ("pressure", 1.0, 0.0), "kpa": ("pressure", 1e3, 0.0), "fraction": ("fraction", 1.0, 0.0),
     "%": ("percent", 1.0, 0.0), "j/(kg k)": ("specific_heat", 1.0, 0.0), "": ("unitless", 1.0, 0.0),
 }  # fmt: skip
+# Definitions a fact's text cites (the band, the scores' scales): grounded by definition, not by the data.
 CONSTANTS = [
     ("temp_abs", BAND_K[0], "20 °C band edge"), ("temp_abs", BAND_K[1], "40 °C band edge"),
+    ("temp_delta", STABILITY_FULL_MARGIN_K, "stability score's full band margin"),
+    ("unitless", COP_REFERENCE, "efficiency score's reference COP"),
     ("fraction", 0.0, "zero"), ("fraction", 1.0, "one"), ("percent", 100.0, "100 %"),
     ("unitless", 0.0, "zero"), ("unitless", 1.0, "one"), ("specific_heat", 4186.0, "c_p of water"),
 ]  # fmt: skip
