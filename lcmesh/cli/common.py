@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -44,6 +46,17 @@ def load_system_or_fail(name: str):
         fail(str(exc))
 
 
+def write_bench(json_out: Path | None, markdown: Path | None, section: str, result: dict, render=None) -> None:
+    """A benchmark's result: JSON to `json_out` (stdout when None), and its BENCHMARKS.md section when asked."""
+    write_json(json_out, result)
+    if markdown is not None:
+        from lcmesh.bench.report import update_benchmarks_md
+
+        kwargs = {} if render is None else {"render": render}
+        update_benchmarks_md(markdown, section, result, **kwargs)
+        console.print(f"updated {markdown}")
+
+
 def write_json(path: Path | None, data: dict) -> None:
     text = json.dumps(data, indent=2, default=json_default)
     if path is None:
@@ -62,6 +75,18 @@ def json_default(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
     raise TypeError(f"not JSON serializable: {type(value).__name__}")
+
+
+@contextmanager
+def stage_progress(description: str) -> Iterator[Callable[[str, int, int], None]]:
+    """A progress bar driven by the benches' ``progress(stage, done, total)`` callback."""
+    with progress_bar() as progress:
+        task = progress.add_task(description, total=None)
+
+        def on_progress(stage: str, done: int, total: int) -> None:
+            progress.update(task, completed=done, total=total, description=stage)
+
+        yield on_progress
 
 
 def progress_bar() -> Progress:

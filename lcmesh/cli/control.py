@@ -10,7 +10,9 @@ from typing import Annotated, Any, Callable, Optional
 
 import typer
 
-from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, fail, progress_bar, train_app, write_json
+from lcmesh.cli.common import (
+    JsonOpt, bench_app, console, distill_app, fail, progress_bar, stage_progress, train_app, write_bench, write_json,
+)  # fmt: skip
 
 
 def dataclass_options(cls: type, run: Callable[[Any], None]) -> Callable[..., None]:
@@ -112,7 +114,6 @@ def bench_control(
 ) -> None:
     """Ablation (Table 3), scaling (Table 4), power-valve correlation (Table 5), trees (Tables 12-15)."""
     from lcmesh.bench.control import render_control, run_bench_control
-    from lcmesh.bench.report import update_benchmarks_md
 
     with console.status("benchmarking the controllers on the Frontier day") as status:
 
@@ -120,10 +121,7 @@ def bench_control(
             status.update(f"setpoint tracking and action sweeps: {stage} ({done}/{total})")
 
         result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress)
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "control", result, render=render_control)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "control", result, render=render_control)
 
 
 @bench_app.command("actions")
@@ -135,19 +133,10 @@ def bench_actions(
 ) -> None:
     """Setpoint tracking under the static rule and G36, and each action's effect on the KPIs, per scenario (issue 12)."""
     from lcmesh.bench.actions import render_actions, run_bench_actions
-    from lcmesh.bench.report import update_benchmarks_md
 
-    with progress_bar() as progress:
-        task = progress.add_task("setpoint tracking and action sweeps", total=None)
-
-        def on_progress(stage: str, done: int, total: int) -> None:
-            progress.update(task, completed=done, total=total, description=stage)
-
+    with stage_progress("setpoint tracking and action sweeps") as on_progress:
         result = run_bench_actions(hours=hours, progress=on_progress, plot_dir=plots)
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "actions", result, render=render_actions)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "actions", result, render=render_actions)
 
 
 @bench_app.command("suite")
@@ -167,7 +156,6 @@ def bench_suite(
     plots: Annotated[Path, typer.Option(help="folder for suite_pareto.png")] = Path("docs/img"),
 ) -> None:
     """Every controller on the held-out days (lcmesh/bench/suite.py): mean ± std, per-day figures, regret (issue 13)."""
-    from lcmesh.bench.report import update_benchmarks_md
     from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, plot_pareto, render_suite, run_suite
     from lcmesh.cli.common import load_system_or_fail
 
@@ -182,12 +170,7 @@ def bench_suite(
         fail(f"`--days`: {exc}")
     if not chosen:
         fail(f"`--days` must name at least one day, got {days!r}")
-    with progress_bar() as progress:
-        task = progress.add_task("held-out days", total=len(names) * len(chosen))
-
-        def on_progress(stage: str, done: int, total: int) -> None:
-            progress.update(task, completed=done, total=total, description=stage)
-
+    with stage_progress("held-out days") as on_progress:
         result = run_suite(names, system, chosen, hours=hours, reference=reference, progress=on_progress)
     for name, entry in result["controllers"].items():
         if entry["error"] is not None:
@@ -195,7 +178,4 @@ def bench_suite(
     if result["regret_note"]:
         console.print(result["regret_note"])
     result["plot"] = str(plot_pareto(result, plots / "suite_pareto.png"))
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "suite", result, render=render_suite)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "suite", result, render=render_suite)

@@ -11,7 +11,8 @@ import typer
 from rich.table import Table
 
 from lcmesh.cli.common import (
-    JsonOpt, ScenarioOpt, SystemOpt, app, bench_app, console, fail, load_system_or_fail, progress_bar, write_json,
+    JsonOpt, ScenarioOpt, SystemOpt, app, bench_app, console, fail, load_system_or_fail, progress_bar,
+    write_bench, write_json,
 )  # fmt: skip
 
 
@@ -121,7 +122,6 @@ def bench_explain(
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
 ) -> None:
     """Facts, renderer and evaluator speed; explanation scores over a G36 day; the test-set verdict."""
-    from lcmesh.bench.report import update_benchmarks_md
     from lcmesh.mesh.tools.explain_eval.bench import render_markdown_section, run_bench_explain
 
     with console.status("benchmarking explanations"):
@@ -129,7 +129,4 @@ def bench_explain(
     day, ts = result["day"]["aggregate"], result["testset"]
     console.print(f"grounding {day['numeric_grounding']:.4f}  coverage {day['coverage']:.4f}  direction "
                   f"{day['direction_consistency']:.4f}  test set {ts['matching']}/{ts['records']}")  # fmt: skip
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "explain", result, render=render_markdown_section)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "explain", result, render=render_markdown_section)

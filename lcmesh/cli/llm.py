@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, progress_bar, write_json
+from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, progress_bar, write_bench
 from lcmesh.cli.control import dataclass_options
 
 
@@ -55,13 +55,9 @@ def bench_llm(
 ) -> None:
     """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
-    from lcmesh.bench.report import update_benchmarks_md
 
     cfg = BenchLlmConfig.make(quick=quick, hours=hours, period_steps=period, adapter=adapter)
     with progress_bar() as progress:
         task = progress.add_task("bench llm", total=None)
         result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg))
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "llm", result, render=render_llm)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "llm", result, render=render_llm)

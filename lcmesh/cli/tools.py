@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from lcmesh.cli.common import (
-    JsonOpt, SystemOpt, app, bench_app, console, fail, load_system_or_fail, progress_bar, write_json,
+    JsonOpt, SystemOpt, app, bench_app, console, fail, load_system_or_fail, progress_bar, write_bench, write_json,
 )  # fmt: skip
 
 tools_app = typer.Typer(help="The math toolbox: the tools the agents host as lcmesh/{site}/tools/{name}.",
@@ -35,7 +35,6 @@ def bench_maintenance(
     """Detection rate, delay and false alarms of the fault detector on lcopt-5 under G36 (simulated days),
     on the detector's own model and on plants that differ from it."""
     from lcmesh.bench.maintenance import SCENARIOS, render_maintenance, run_bench_maintenance
-    from lcmesh.bench.report import update_benchmarks_md
 
     with progress_bar() as progress:
         task = progress.add_task("maintenance runs", total=None)
@@ -60,10 +59,7 @@ def bench_maintenance(
         fa = scenario["false_alarms"]
         console.print(f"false alarms ({name}): {fa['count']} in {fa['fault_free_days']:.1f} fault-free days = "
                       f"{fa['per_day']:.2f}/day")  # fmt: skip
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "maintenance", result, render=render_maintenance)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "maintenance", result, render=render_maintenance)
 
 
 @tools_app.command("list")

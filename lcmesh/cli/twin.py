@@ -10,7 +10,8 @@ import typer
 from rich.table import Table
 
 from lcmesh.cli.common import (
-    JsonOpt, ScenarioOpt, SystemOpt, bench_app, console, fail, load_system_or_fail, progress_bar, twin_app, write_json,
+    JsonOpt, ScenarioOpt, SystemOpt, bench_app, console, fail, load_system_or_fail, progress_bar, twin_app,
+    write_bench, write_json,
 )  # fmt: skip
 
 
@@ -137,12 +138,8 @@ def bench_twin(
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
 ) -> None:
     """Env steps/s (lcopt-5), a 24 h frontier-full day, raw fmi2 vs fmpy list API."""
-    from lcmesh.bench.report import update_benchmarks_md
     from lcmesh.bench.twin import run_bench_twin
 
     with console.status("benchmarking the twin (one core)"):
         result = run_bench_twin(quick=quick)
-    write_json(json_out, result)
-    if markdown is not None:
-        update_benchmarks_md(markdown, "twin", result)
-        console.print(f"updated {markdown}")
+    write_bench(json_out, markdown, "twin", result)

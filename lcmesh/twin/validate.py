@@ -51,7 +51,7 @@ def validate_twin(system: SystemDescription, *, plot_dir: Path | None = None, se
             results += published_checks(system, real_day, design_day)
         else:
             results.append({"name": "published_figures", "passed": True, "skipped": True,
-                            "criterion": "only for systems carrying the traces' real CDU loads (design_heat_w 650 kW)"})  # fmt: skip
+                            "criterion": "only for systems with the traces' real CDU loads (design_heat_w 650 kW)"})  # fmt: skip
     return {"system": system.name, "passed": all(r["passed"] for r in results), "checks": results}
 
 

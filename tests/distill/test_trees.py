@@ -14,7 +14,7 @@ from lcmesh.distill.trees import Tree, TreeController, load_trees, save_trees, t
 from lcmesh.twin.controllers import make_controller
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.plant import Plant
-from lcmesh.twin.system import load_system, parse_system
+from lcmesh.twin.system import parse_system
 
 
 def _data(n=2000, f=5, seed=0):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
 import subprocess
 import sys
 import zipfile
@@ -14,7 +13,7 @@ import numpy as np
 import pytest
 
 from lcmesh.twin.fmu_build import build_fmu
-from lcmesh.twin.fmu_runner import FmuError, FmuRunner, validate_fmu
+from lcmesh.twin.fmu_runner import FmuError, validate_fmu
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.system import parse_system
 

@@ -141,7 +141,8 @@ def test_a_run_does_not_depend_on_what_the_plant_ran_before(lcopt5):
 
     trace = load_trace(FRONTIER_DAY, lcopt5, hours=1)
     with Plant(lcopt5) as fresh, Plant(lcopt5) as used:
-        run_twin(used, load_trace(FRONTIER_DAY, lcopt5, scenario="design-day", hours=2), make_controller("static", lcopt5))
+        hot = load_trace(FRONTIER_DAY, lcopt5, scenario="design-day", hours=2)
+        run_twin(used, hot, make_controller("static", lcopt5))
         used.set_faults(pump_degradation=[0.7, 0, 0, 0, 0])
         fresh.set_faults(pump_degradation=[0.7, 0, 0, 0, 0])
         a = run_twin(fresh, trace, make_controller("g36", lcopt5)).kpi
