@@ -87,7 +87,10 @@ def collect_experience(
     spinup_hours: float = 1.0,
     on_step: Callable[[int], None] | None = None,
 ) -> Experience:
-    """Roll ``teacher`` over each trace (``n_steps`` each, default all) and record what it saw and did."""
+    """Roll ``teacher`` over each trace (``n_steps`` each, default all) and record what it saw and did.
+
+    A trace ``SPEC@SCENARIO`` runs under that scenario; a bare spec under ``lcopt`` with ``wet_bulb_offset_k``.
+    """
     from lcmesh.distill.features import FeatureBuilder
 
     traces = [traces] if isinstance(traces, str) else list(traces)
@@ -99,7 +102,8 @@ def collect_experience(
     done = 0
     with Plant(system) as plant:
         for spec in traces:
-            trace = load_trace(spec, system, scenario=scenario_with_offset("lcopt", wet_bulb_offset_k))
+            name, _, scenario = spec.partition("@")
+            trace = load_trace(name, system, scenario=scenario or scenario_with_offset("lcopt", wet_bulb_offset_k))
             steps = trace.n_steps if n_steps is None else min(n_steps, trace.n_steps)
             power = np.zeros(system.n_blade_groups)
             teacher.reset()

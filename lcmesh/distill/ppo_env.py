@@ -177,15 +177,26 @@ def _design_pump_w(system) -> float:
     return (cdu.r_hx_secondary_pa_per_kg_s + cdu.r_cabinet_pa_per_kg_s) * flow**2 / (997.0 * cdu.pump.efficiency)
 
 
-def episode_rewards(controller, system_name: str, seeds, steps: int = 200, wet_bulb_offset_k: float = 15.0) -> dict:
+def episode_rewards(
+    controller,
+    system_name: str,
+    seeds,
+    steps: int = 200,
+    wet_bulb_offset_k: float = 15.0,
+    scenarios: tuple[str, ...] = ("lcopt",),
+    reward: str = "lcopt",
+) -> dict:
     """Mean episode reward per cabinet and per tower of ``controller`` over evaluation episodes (Tables 12/14).
 
-    One episode per seed: the trace ``synthetic:SEED`` from row 0 (after the warm-up), ``steps`` steps.
+    One episode per seed: the trace ``synthetic:SEED`` from row 0 (after the warm-up), ``steps`` steps, under
+    scenario ``scenarios[seed % len(scenarios)]`` (``lcopt`` with ``wet_bulb_offset_k``), scored with ``reward``.
     """
     cab_total, tow_total = [], []
     for seed in seeds:
-        driver = EpisodeDriver(EpisodeConfig(system=system_name, trace=f"synthetic:{seed}",
-                                             wet_bulb_offset_k=wet_bulb_offset_k, episode_steps=steps, random_start=False))  # fmt: skip
+        scenario = scenarios[seed % len(scenarios)]
+        offset = wet_bulb_offset_k if scenario == "lcopt" else None
+        driver = EpisodeDriver(EpisodeConfig(system=system_name, trace=f"synthetic:{seed}", scenario=scenario,
+                                             wet_bulb_offset_k=offset, episode_steps=steps, random_start=False))  # fmt: skip
         try:
             driver.reset(np.random.default_rng(0), start_row=0)
             controller.reset()
@@ -193,7 +204,7 @@ def episode_rewards(controller, system_name: str, seeds, steps: int = 200, wet_b
             for _ in range(steps):
                 action = controller.act(driver.observation())
                 out, terminated, truncated = driver.step(action)
-                c, t = step_rewards(driver.system, out, action)
+                c, t = step_rewards(driver.system, out, action, reward)
                 cab += float(c.mean())
                 tow += float(t.mean())
                 if terminated or truncated:

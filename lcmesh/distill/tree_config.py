@@ -23,16 +23,34 @@ class TreeDistillConfig:
     max_depth_cdu: int = 14
     max_depth_valves: int = 14
     max_depth_tower: int = 12
+    max_leaves: int = 0
+    """At most this many leaves per tree (0: no limit); with depth <= 8 it makes a tree whose rules fit a page."""
     min_samples_leaf: int = 4
+    scenarios: str = "lcopt"
+    """Scenarios of the training, held-out and reward traces (comma list; seed s runs under scenario s mod their
+    count); ``frontier,design-day`` for a teacher trained on the real-load plant."""
+    reward: str = "lcopt"
+    """The reward the episode rewards and the gap are measured in (the teacher's training reward)."""
+    rules_depth: int = 5
+    """Levels of each tree written to the rules file (a readable tree: all of them)."""
     seed: int = 0
     out: str = ""
     """Where the VIPER trees go (JSON; empty: the shipped lcmesh/artifacts/trees/case7.json); the naive
     (uniform) trees go beside it with a -naive suffix, the rules and the report too."""
 
+    def scenario_list(self) -> tuple[str, ...]:
+        return tuple(s.strip() for s in self.scenarios.split(",") if s.strip())
+
     def __post_init__(self) -> None:
         for name in ("train_seeds", "reward_seeds"):
             parse_seeds(getattr(self, name), name)
-        for name in ("samples", "max_depth_cdu", "max_depth_valves", "max_depth_tower", "min_samples_leaf"):
+        if self.max_leaves < 0 or self.max_leaves == 1:
+            raise ValueError(f"`max_leaves` must be 0 (no limit) or >= 2, got {self.max_leaves}")
+        if self.reward not in ("lcopt", "energy"):
+            raise ValueError(f"`reward` must be 'lcopt' or 'energy', got {self.reward!r}")
+        if not self.scenario_list():
+            raise ValueError("`scenarios` must name at least one scenario")
+        for name in ("samples", "max_depth_cdu", "max_depth_valves", "max_depth_tower", "min_samples_leaf", "rules_depth"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
 

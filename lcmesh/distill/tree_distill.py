@@ -49,17 +49,21 @@ def fit_trees(exp: Experience, cab: np.ndarray, tow: np.ndarray, cfg: TreeDistil
     idx = resample(exp, cfg.samples, rng, "cabinet", uniform=uniform)
     x = exp.cabinet_rows[idx[:, 0], idx[:, 1]]
     y = cab[idx[:, 0], idx[:, 1]]
-    model = DecisionTreeRegressor(max_depth=cfg.max_depth_cdu, min_samples_leaf=cfg.min_samples_leaf, random_state=cfg.seed)
+    leaves = {"max_leaf_nodes": cfg.max_leaves} if cfg.max_leaves else {}
+    model = DecisionTreeRegressor(max_depth=cfg.max_depth_cdu, min_samples_leaf=cfg.min_samples_leaf, random_state=cfg.seed,
+                                  **leaves)  # fmt: skip
     trees["cdu"] = Tree.from_sklearn(model.fit(x, y[:, :2]), cab_cols, ["supply_setpoint_u", "dp_setpoint_u"])
     if y.shape[1] > 2:
-        model = DecisionTreeRegressor(max_depth=cfg.max_depth_valves, min_samples_leaf=cfg.min_samples_leaf, random_state=cfg.seed)
+        model = DecisionTreeRegressor(max_depth=cfg.max_depth_valves, min_samples_leaf=cfg.min_samples_leaf,
+                                      random_state=cfg.seed, **leaves)  # fmt: skip
         names = [f"valve_fraction[{j}]" for j in range(y.shape[1] - 2)]
         trees["valves"] = Tree.from_sklearn(model.fit(x, y[:, 2:]), cab_cols, names)
     if tow is not None:
         idx = resample(exp, cfg.samples, rng, "tower", uniform=uniform)
         x = exp.tower_rows[idx[:, 0], idx[:, 1]]
         y = tow[idx[:, 0], idx[:, 1]]
-        model = DecisionTreeClassifier(max_depth=cfg.max_depth_tower, min_samples_leaf=cfg.min_samples_leaf, random_state=cfg.seed)
+        model = DecisionTreeClassifier(max_depth=cfg.max_depth_tower, min_samples_leaf=cfg.min_samples_leaf,
+                                       random_state=cfg.seed, **leaves)  # fmt: skip
         model.fit(x, y)
         trees["tower"] = Tree.from_sklearn(model, list(layout.tower_columns), ["approach_step_index"], classes=model.classes_)
     return trees
@@ -116,17 +120,25 @@ def distill_trees(cfg: TreeDistillConfig, on_step: Callable[[str], None] | None 
     policy = cfg.policy or str(DEFAULT_POLICY)
     teacher = PpoController(system, policy)
     say("rolling the teacher over the training traces")
-    traces = [f"synthetic:{s}" for s in parse_seeds(cfg.train_seeds)]
+    scenarios = cfg.scenario_list()
+
+    def spec(seed: int) -> str:
+        return f"synthetic:{seed}" if scenarios == ("lcopt",) else f"synthetic:{seed}@{scenarios[seed % len(scenarios)]}"
+
+    traces = [spec(s) for s in parse_seeds(cfg.train_seeds)]
     exp = collect_experience(teacher, system, traces)
     cab, tow = teacher_labels(teacher, exp)
     say("rolling the teacher over the held-out trace")
-    held = collect_experience(teacher, system, [f"synthetic:{cfg.heldout_seed}"])
+    held = collect_experience(teacher, system, [spec(cfg.heldout_seed)])
     held_cab, held_tow = teacher_labels(teacher, held)
     out = Path(cfg.out) if cfg.out else DEFAULT_TREES
     report: dict = {"config": asdict(cfg), "experience_steps": exp.n_steps, "teacher": teacher.version}
     reward_seeds = parse_seeds(cfg.reward_seeds)
     say("evaluating the teacher's episode reward")
-    report["teacher_reward"] = episode_rewards(PpoController(system, policy), system.name, reward_seeds)
+    def rewards(controller) -> dict:
+        return episode_rewards(controller, system.name, reward_seeds, scenarios=scenarios, reward=cfg.reward)
+
+    report["teacher_reward"] = rewards(PpoController(system, policy))
     manifest = {"version": f"viper-{teacher.version}", "teacher": policy, "command": " ".join(sys.argv),
                 "commit": git_commit(), "seed": cfg.seed, "system": system.name}  # fmt: skip
     for variant, uniform in (("viper", False), ("naive", True)):
@@ -136,12 +148,13 @@ def distill_trees(cfg: TreeDistillConfig, on_step: Callable[[str], None] | None 
         metrics = {"fidelity": fidelity(trees, held, held_cab, held_tow), "complexity": complexity(trees, teacher)}
         save_trees(path, trees, layout, {**manifest, "version": f"{variant}-{teacher.version}", "metrics": metrics})
         say(f"evaluating the {variant} trees' episode reward")
-        metrics["reward"] = episode_rewards(TreeController(system, path), system.name, reward_seeds)
+        metrics["reward"] = rewards(TreeController(system, path))
         save_trees(path, trees, layout, {**manifest, "version": f"{variant}-{teacher.version}", "metrics": metrics})
         report[variant] = {"path": str(path), **metrics}
         if variant == "viper":
-            rules = [f"# {name} tree ({t.n_nodes} nodes, depth {t.depth}); first 5 levels\n\n" + tree_rules(t, 5, feature_in_units)
-                     for name, t in trees.items()]  # fmt: skip
+            levels = cfg.rules_depth
+            rules = [f"# {name} tree ({t.n_nodes} nodes, depth {t.depth}); first {levels} levels\n\n"
+                     + tree_rules(t, levels, feature_in_units) for name, t in trees.items()]  # fmt: skip
             out.with_suffix(".rules.txt").write_text("\n\n".join(rules) + "\n")
     t_total = report["teacher_reward"]["cabinet_reward"] + report["teacher_reward"]["tower_reward"]
     for variant in ("viper", "naive"):
