@@ -44,10 +44,14 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def make_teacher(name: str, system: SystemDescription, policy: str = ""):
-    """The teacher controller (``policy`` selects a PPO policy or tree file)."""
+    """The teacher controller (``policy`` selects a PPO policy or tree file; default: the paper-plant ones the
+    shipped LLM was distilled from)."""
+    from lcmesh.distill.policy import PAPER_POLICY
+    from lcmesh.distill.trees import PAPER_TREES
     from lcmesh.twin.controllers import make_controller
 
-    kwargs = {"policy": policy} if policy and name in ("ppo", "tree") else {}
+    paper = {"ppo": str(PAPER_POLICY), "tree": str(PAPER_TREES)}
+    kwargs = {"policy": policy or paper[name]} if name in paper else {}
     return make_controller(name, system, **kwargs)
 
 

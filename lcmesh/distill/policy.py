@@ -26,7 +26,8 @@ from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
-DEFAULT_POLICY = ARTIFACTS / "ppo" / "case7"
+PAPER_POLICY = ARTIFACTS / "ppo" / "case7"  # case 7 on lcopt-5-paper under the lcopt scenario (paper tables, LLM teacher)
+DEFAULT_POLICY = ARTIFACTS / "ppo" / "frontier-case7"  # case 7 on the real-load plant (docs/controllers.md)
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,9 @@ class TreeDistillConfig:
     """``lcmesh distill tree`` settings."""
 
     policy: str = ""
-    """Teacher policy (path without suffix: NAME.json + NAME.safetensors); empty: the shipped case-7 policy."""
-    system: str = "lcopt-5-paper"
+    """Teacher policy (path without suffix: NAME.json + NAME.safetensors); empty: the shipped real-load case-7
+    policy (the paper trees came from lcmesh/artifacts/ppo/case7 on lcopt-5-paper under the lcopt scenario)."""
+    system: str = "lcopt-5"
     train_seeds: str = "0-7"
     """Synthetic training traces the teacher is rolled over (a range 'A-B' or a comma list)."""
     heldout_seed: int = 1003
@@ -26,16 +27,16 @@ class TreeDistillConfig:
     max_leaves: int = 0
     """At most this many leaves per tree (0: no limit); with depth <= 8 it makes a tree whose rules fit a page."""
     min_samples_leaf: int = 4
-    scenarios: str = "lcopt"
+    scenarios: str = "frontier,design-day"
     """Scenarios of the training, held-out and reward traces (comma list; seed s runs under scenario s mod their
     count); ``frontier,design-day`` for a teacher trained on the real-load plant."""
-    reward: str = "lcopt"
+    reward: str = "energy"
     """The reward the episode rewards and the gap are measured in (the teacher's training reward)."""
     rules_depth: int = 5
     """Levels of each tree written to the rules file (a readable tree: all of them)."""
     seed: int = 0
     out: str = ""
-    """Where the VIPER trees go (JSON; empty: the shipped lcmesh/artifacts/trees/case7.json); the naive
+    """Where the VIPER trees go (JSON; empty: the shipped lcmesh/artifacts/trees/frontier-case7.json); the naive
     (uniform) trees go beside it with a -naive suffix, the rules and the report too."""
 
     def scenario_list(self) -> tuple[str, ...]:

@@ -49,8 +49,10 @@ def make_fallback(name: str, system: SystemDescription) -> Controller:
 
     if name != "auto":
         return make_controller(name, system)
+    from lcmesh.distill.policy import PAPER_POLICY  # the teacher the shipped LLM was distilled from
+
     try:
-        return make_controller("ppo", system)
+        return make_controller("ppo", system, policy=str(PAPER_POLICY))
     except Exception as exc:  # no trained policy shipped, or not for this system
         log.info("fallback 'ppo' unavailable (%s); using 'g36'", exc)
         return make_controller("g36", system)

@@ -241,7 +241,7 @@ class LlmSettings(_Part):
 class MeshConfig(_Part):
     """What operators change at run time (held, versioned and audited by the Configuration agent)."""
 
-    controller: str = "g36"  # until policies are trained on the real-load plant (docs/controllers.md)
+    controller: str = "tree"
     mode: Literal["auto", "manual"] = "auto"
     manual_action: ActionModel | None = None
     speed_factor: float = Field(60.0, gt=0, le=100_000)

@@ -170,9 +170,8 @@ class MeshSettings(BaseSettings):
     wet_bulb_offset_k: float = Field(0.0, ge=-50, le=50, description="K added to the wet bulb, on top of the "
                                      "scenario's")
     speed_factor: float = Field(60.0, gt=0, le=100_000, description="simulated seconds per wall second")
-    controller: str = Field("g36", description="the controller at start; G36 until the learned policies are trained on "
-                            "the real-load plant (the shipped tree, trained on lcopt-5-paper, keeps 88 % of blade "
-                            "groups in band on the Frontier day here, G36 99.4 %)")
+    controller: str = Field("tree", description="the controller at start: the trees distilled from the real-load "
+                            "plant's case-7 policy (docs/controllers.md)")
     controller_plugins: PluginList = Field([], description="third-party controllers ('package.module:Class') the "
                                            "configuration may switch to; any other module:Class name is refused "
                                            "(docs/controllers.md, Bring your own controller)")  # fmt: skip
