@@ -35,7 +35,7 @@ from lcmesh.bench.machine import machine_info
 from lcmesh.twin.controllers import Controller, Observation, make_controller
 from lcmesh.twin.controllers.static import APPROACH_10F_K
 from lcmesh.twin.plant import Plant, PlantAction
-from lcmesh.twin.run import run_twin
+from lcmesh.twin.run import run_twin, save_figure
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription, load_system
 from lcmesh.twin.traces import FRONTIER_DAY, SCENARIOS, Trace, load_trace
 
@@ -246,12 +246,7 @@ def plot_actions(result: dict, plot_dir: Path) -> Path:
     axes[0, 0].legend(fontsize=8)
     where = f"{', '.join(result['systems'])}, {result['trace']}, {result['hours']:g} h"
     fig.suptitle(f"Each action varied alone, the others at the static rule's values ({where})")
-    fig.tight_layout()
-    plot_dir.mkdir(parents=True, exist_ok=True)
-    path = plot_dir / "actions.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, Path(plot_dir) / "actions.png", dpi=90)
 
 
 TRACKING_HEADER = (

@@ -52,7 +52,7 @@ import numpy as np
 from lcmesh.bench.machine import machine_info
 from lcmesh.twin.controllers import Controller, make_controller
 from lcmesh.twin.plant import Plant
-from lcmesh.twin.run import run_twin
+from lcmesh.twin.run import run_twin, save_figure
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription, load_system
 from lcmesh.twin.traces import FRONTIER_DAY, Trace, load_trace, trace_split
 
@@ -347,9 +347,4 @@ def plot_pareto(r: dict, path: str | Path) -> Path:
     ax.set_ylim(top=101.0)
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

@@ -200,9 +200,16 @@ def plot_run(result: RunResult, path: str | Path) -> Path:
     ax.set_ylabel("cabinet 1 fraction")
     ax.set_xlabel("time (h)")
     ax.legend(loc="upper right", fontsize=8, ncol=3)
+    return save_figure(fig, path, dpi=90)
+
+
+def save_figure(fig, path: Path | str, dpi: int) -> Path:
+    """Lay out, write (making the folder) and close a matplotlib figure; returns the path written."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
