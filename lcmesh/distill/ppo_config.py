@@ -94,8 +94,8 @@ class PpoConfig:
         return days
 
     def __post_init__(self) -> None:
-        if self.reward not in ("lcopt", "energy"):
-            raise ValueError(f"`reward` must be 'lcopt' or 'energy', got {self.reward!r}")
+        if self.reward not in ("lcopt", "energy", "energy_smooth"):
+            raise ValueError(f"`reward` must be 'lcopt', 'energy' or 'energy_smooth', got {self.reward!r}")
         if not self.scenario_list():
             raise ValueError("`scenarios` must name at least one scenario (e.g. 'lcopt' or 'frontier,design-day')")
         from lcmesh.twin.traces import scenario_named  # numpy only: the CLI stays fast

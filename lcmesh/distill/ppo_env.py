@@ -19,6 +19,10 @@ the look-ahead controller's cost in per-step form: the band, then the cooling en
   hot-water pumping a cabinet causes) ``- 0.5 * valve term``: no reward for running colder than needed;
 - tower j: ``-fan power / (m * nominal) - 3 * mean overheat - 5 * share of all blade groups outside
   the band``.
+
+Reward ``"energy_smooth"`` is ``"energy"`` with ``-0.1 / K`` of the cabinet's supply-setpoint change over the
+step: a policy trained on ``"energy"`` alone flips its supply setpoint between extremes (tens of thousands of
+kelvin of travel a day, against G36's hundreds).
 """
 
 from __future__ import annotations
@@ -38,7 +42,8 @@ VALVE_TERM_WEIGHT = 0.5
 TOWER_OVERHEAT_WEIGHT = 3.0
 BAND_WEIGHT = 5.0
 ENERGY_WEIGHT = 0.3
-REWARDS = ("lcopt", "energy")
+TRAVEL_WEIGHT_PER_K = 0.1
+REWARDS = ("lcopt", "energy", "energy_smooth")
 
 
 class TrainPlants:
@@ -129,24 +134,30 @@ class TrainPlants:
                     action.valve_fractions[:] = base.valve_fractions
             if tower_choice is not None:
                 self.towers[e].apply(tower_choice[e], obs.wet_bulb_k, action)
+            travel_k = np.abs(action.supply_temp_setpoint_k - obs.out["applied_supply_setpoint_k"])
             out, term, _ = driver.step(action)
             terminated[e] = term
-            cab_r[e], tow_r[e] = self._rewards(out, action)
+            cab_r[e], tow_r[e] = self._rewards(out, action, travel_k)
             in_band[e] = driver.in_band_fraction()
             fan_kw[e] = float(out["ct_fan_power_w"]) / 1e3
         return {"cabinet_reward": cab_r, "tower_reward": tow_r, "terminated": terminated,
                 "in_band": in_band, "ct_fan_kw": fan_kw}  # fmt: skip
 
-    def _rewards(self, out, action: PlantAction) -> tuple[np.ndarray, np.ndarray]:
-        return step_rewards(self.system, out, action, self.reward)
+    def _rewards(self, out, action: PlantAction, travel_k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return step_rewards(self.system, out, action, self.reward, travel_k)
 
     def close(self) -> None:
         for d in self.drivers:
             d.close()
 
 
-def step_rewards(system, out, action: PlantAction, reward: str = "lcopt") -> tuple[np.ndarray, np.ndarray]:
-    """Per-cabinet (C,) and per-tower (N,) rewards of the step just taken (see the module docstring)."""
+def step_rewards(
+    system, out, action: PlantAction, reward: str = "lcopt", supply_travel_k: np.ndarray | float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cabinet (C,) and per-tower (N,) rewards of the step just taken (see the module docstring).
+
+    ``supply_travel_k``: each cabinet's supply-setpoint change over the step (``energy_smooth`` only).
+    """
     cab, tw = system.cabinets, system.towers
     C, B, N, m = cab.count, cab.branches, tw.count, tw.cells
     blade = out["blade_temp_k"].reshape(C, -1)
@@ -155,13 +166,15 @@ def step_rewards(system, out, action: PlantAction, reward: str = "lcopt") -> tup
     share = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
     valve_term = np.abs(action.valve_fractions - share).sum(axis=1)
     fans = out["cell_fan_power_w"].reshape(N, m).sum(axis=1) / (m * tw.cell.fan_power_nominal_w)
-    if reward == "energy":
+    if reward in ("energy", "energy_smooth"):
         lo, hi = KPI_BAND_K
         outside = ((blade < lo) | (blade > hi)).mean(axis=1)
         pump = out["cdu_pump_power_w"] / _design_pump_w(system)
         primary = out["primary_flow_kg_s"] / cab.cdu.primary_flow_max_kg_s
         cabinet = (-BAND_WEIGHT * outside - overheat - ENERGY_WEIGHT * pump - ENERGY_WEIGHT * primary
                    - VALVE_TERM_WEIGHT * valve_term)  # fmt: skip
+        if reward == "energy_smooth":
+            cabinet = cabinet - TRAVEL_WEIGHT_PER_K * np.asarray(supply_travel_k)
         tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean() - BAND_WEIGHT * outside.mean()
         return cabinet, tower
     mean_t = out["branch_temp_k"].reshape(C, B).mean(axis=1)
@@ -202,9 +215,12 @@ def episode_rewards(
             controller.reset()
             cab, tow = 0.0, 0.0
             for _ in range(steps):
-                action = controller.act(driver.observation())
+                obs = driver.observation()
+                before = obs.out["applied_supply_setpoint_k"].copy()
+                action = controller.act(obs)
+                travel_k = np.abs(action.supply_temp_setpoint_k - before)
                 out, terminated, truncated = driver.step(action)
-                c, t = step_rewards(driver.system, out, action, reward)
+                c, t = step_rewards(driver.system, out, action, reward, travel_k)
                 cab += float(c.mean())
                 tow += float(t.mean())
                 if terminated or truncated:

@@ -47,8 +47,8 @@ class TreeDistillConfig:
             parse_seeds(getattr(self, name), name)
         if self.max_leaves < 0 or self.max_leaves == 1:
             raise ValueError(f"`max_leaves` must be 0 (no limit) or >= 2, got {self.max_leaves}")
-        if self.reward not in ("lcopt", "energy"):
-            raise ValueError(f"`reward` must be 'lcopt' or 'energy', got {self.reward!r}")
+        if self.reward not in ("lcopt", "energy", "energy_smooth"):
+            raise ValueError(f"`reward` must be 'lcopt', 'energy' or 'energy_smooth', got {self.reward!r}")
         if not self.scenario_list():
             raise ValueError("`scenarios` must name at least one scenario")
         for name in ("samples", "max_depth_cdu", "max_depth_valves", "max_depth_tower", "min_samples_leaf", "rules_depth"):
