@@ -13,7 +13,7 @@ import numpy as np
 from lcmesh.distill.experience import Experience, collect_experience, resample
 from lcmesh.distill.tree_config import TreeDistillConfig, parse_seeds
 from lcmesh.distill.features import APPROACH_LEVELS_K, DP_RANGE_PA, SUPPLY_RANGE_K, FeatureLayout
-from lcmesh.distill.trees import DEFAULT_TREES, Tree, TreeController, feature_in_units, save_trees, tree_rules
+from lcmesh.distill.trees import DEFAULT_TREES, Tree, TreeController, rules_text, save_trees
 from lcmesh.twin.system import PSI_TO_PA
 
 
@@ -152,10 +152,7 @@ def distill_trees(cfg: TreeDistillConfig, on_step: Callable[[str], None] | None 
         save_trees(path, trees, layout, {**manifest, "version": f"{variant}-{teacher.version}", "metrics": metrics})
         report[variant] = {"path": str(path), **metrics}
         if variant == "viper":
-            levels = cfg.rules_depth
-            rules = [f"# {name} tree ({t.n_nodes} nodes, depth {t.depth}); first {levels} levels\n\n"
-                     + tree_rules(t, levels, feature_in_units) for name, t in trees.items()]  # fmt: skip
-            out.with_suffix(".rules.txt").write_text("\n\n".join(rules) + "\n")
+            out.with_suffix(".rules.txt").write_text(rules_text(trees, cfg.rules_depth))
     t_total = report["teacher_reward"]["cabinet_reward"] + report["teacher_reward"]["tower_reward"]
     for variant in ("viper", "naive"):
         r = report[variant]["reward"]

@@ -11,18 +11,19 @@ pickle) and evaluated with numpy, so the controller needs neither sklearn nor to
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from lcmesh.distill.features import (
-    APPROACH_LEVELS_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
+    APPROACH_LEVELS_K, DP_RANGE_PA, SUPPLY_RANGE_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
 )  # fmt: skip
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.controllers.g36 import G36Controller
 from lcmesh.twin.plant import PlantAction
-from lcmesh.twin.system import SystemDescription
+from lcmesh.twin.system import PSI_TO_PA, SystemDescription
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts"
 PAPER_TREES = ARTIFACTS / "trees" / "case7.json"  # from the paper-plant case-7 policy
@@ -96,12 +97,14 @@ class Tree:
                    np.asarray(d["value"], dtype=np.float64), list(d["feature_names"]), list(d["output_names"]))  # fmt: skip
 
 
-def tree_rules(tree: Tree, max_depth: int = 6, unit_of=None) -> str:
+def tree_rules(tree: Tree, max_depth: int = 6, unit_of=None, output_unit_of=None, name_of=None) -> str:
     """Nested if/else rules (down to ``max_depth``; deeper subtrees summarized by their mean output)."""
     lines: list[str] = []
 
     def leaf_text(i: int) -> str:
         vals = tree.value[i]
+        if output_unit_of is not None:
+            return ", ".join(output_unit_of(name, v) for name, v in zip(tree.output_names, vals))
         return ", ".join(f"{name} = {v:.3f}" for name, v in zip(tree.output_names, vals))
 
     def walk(i: int, depth: int) -> None:
@@ -115,9 +118,10 @@ def tree_rules(tree: Tree, max_depth: int = 6, unit_of=None) -> str:
         name = tree.feature_names[tree.feature[i]]
         thr = tree.threshold[i]
         shown = unit_of(name, thr) if unit_of else f"{thr:.3f}"
-        lines.append(f"{pad}if {name} <= {shown}:")
+        label = name_of(name) if name_of else name
+        lines.append(f"{pad}if {label} <= {shown}:")
         walk(tree.left[i], depth + 1)
-        lines.append(f"{pad}else:  # {name} > {shown}")
+        lines.append(f"{pad}else:  # {label} > {shown}")
         walk(tree.right[i], depth + 1)
 
     walk(0, 0)
@@ -145,6 +149,37 @@ def feature_in_units(name: str, value: float) -> str:
     if name.startswith("branch_power"):
         return f"{value + 1.0:.3f} x design branch load"
     return f"{value:.3f}"
+
+
+def output_in_units(name: str, value: float) -> str:
+    """A leaf's output as the action it sends, for the rules operators read."""
+    if name == "supply_setpoint_u":
+        lo, hi = SUPPLY_RANGE_K
+        return f"supply setpoint {lo - 273.15 + (np.clip(value, -1, 1) + 1.0) * 0.5 * (hi - lo):.1f} degC"
+    if name == "dp_setpoint_u":
+        lo, hi = DP_RANGE_PA
+        return f"dp setpoint {(lo + (np.clip(value, -1, 1) + 1.0) * 0.5 * (hi - lo)) / PSI_TO_PA:.1f} psi"
+    if name == "approach_step_index":
+        level = APPROACH_LEVELS_K[int(np.clip(np.rint(value), 0, len(APPROACH_LEVELS_K) - 1))]
+        return f"tower leaving water = wet bulb + {level:g} K"
+    if name.startswith("valve_fraction["):
+        return f"valve {int(name[15:-1]) + 1} weight {value:.3f}"
+    return f"{name} = {value:.3f}"
+
+
+def person_name(feature: str) -> str:
+    """A feature's name as a person reads it: ``branch_power[2]`` -> ``branch 3 power`` (branches from 1)."""
+    match = re.fullmatch(r"branch_(\w+)\[(\d+)\]", feature)
+    if match:
+        return f"branch {int(match.group(2)) + 1} {match.group(1).replace('_', ' ')}"
+    return feature.replace("_", " ")
+
+
+def rules_text(trees: dict[str, Tree], levels: int) -> str:
+    """Every tree's rules down to ``levels``, thresholds and actions in physical units (the rules file)."""
+    blocks = [f"# {name} tree ({t.n_nodes} nodes, depth {t.depth}); first {levels} levels\n\n"
+              + tree_rules(t, levels, feature_in_units, output_in_units, person_name) for name, t in trees.items()]  # fmt: skip
+    return "\n\n".join(blocks) + "\n"
 
 
 def save_trees(path: Path, trees: dict[str, Tree], layout: FeatureLayout, manifest: dict) -> Path:
@@ -207,4 +242,4 @@ class TreeController:
         return action
 
 
-__all__ = ["APPROACH_LEVELS_K", "Tree", "TreeController", "load_trees", "save_trees", "tree_rules"]
+__all__ = ["APPROACH_LEVELS_K", "Tree", "TreeController", "load_trees", "output_in_units", "rules_text", "save_trees", "tree_rules"]
