@@ -70,8 +70,9 @@ _DATA_GROUP_SHARE_SIGMA = 0.094
 # SeedSequence stream tags, so the draws of one purpose never shift those of another.
 _BRANCH_STREAM, _GROUP_STREAM, _COLUMN_SHIFT_STREAM, _PROFILE_STREAM = 1, 2, 3, 4
 
-# Climatic design conditions (placeholders until cited; see docs/traces.md, "Design days").
-DESIGN_SOURCE = "ASHRAE Handbook-Fundamentals climatic design conditions"
+# Climatic design conditions of Knoxville McGhee Tyson Airport, TN (WMO 723260), 11 miles from ORNL: the annual
+# evaporation design wet bulb by percentile and the daily wet-bulb range, as read from ASHRAE Handbook-
+# Fundamentals (2009); not verified against the source in this workplace (docs/traces.md, "Design days").
 KNOXVILLE_EVAP_WB_C = {0.4: 24.6, 1.0: 24.0, 2.0: 23.4}
 KNOXVILLE_WB_RANGE_K = 3.9
 
@@ -236,7 +237,6 @@ class DesignDay:
     name: str
     peak_wet_bulb_c: float
     daily_range_k: float
-    source: str
 
     def wet_bulb_c(self, time_s: np.ndarray) -> np.ndarray:
         """Wet bulb (deg C) at ``time_s`` (s from midnight, local solar time), interpolated between hours."""
@@ -256,14 +256,9 @@ _DAILY_RANGE_FRACTION = np.array([
 ])  # fmt: skip
 _DAILY_RANGE_FRACTION.setflags(write=False)
 
-KNOXVILLE = "Knoxville McGhee Tyson Airport, TN (WMO 723260), 11 miles from ORNL"
 DESIGN_DAYS = {
-    d.name: d
-    for d in (
-        DesignDay("knoxville-0.4", KNOXVILLE_EVAP_WB_C[0.4], KNOXVILLE_WB_RANGE_K, f"{KNOXVILLE}: {DESIGN_SOURCE}"),
-        DesignDay("knoxville-1", KNOXVILLE_EVAP_WB_C[1.0], KNOXVILLE_WB_RANGE_K, f"{KNOXVILLE}: {DESIGN_SOURCE}"),
-        DesignDay("knoxville-2", KNOXVILLE_EVAP_WB_C[2.0], KNOXVILLE_WB_RANGE_K, f"{KNOXVILLE}: {DESIGN_SOURCE}"),
-    )
+    f"knoxville-{pct:g}": DesignDay(f"knoxville-{pct:g}", wet_bulb_c, KNOXVILLE_WB_RANGE_K)
+    for pct, wet_bulb_c in KNOXVILLE_EVAP_WB_C.items()
 }
 
 LCOPT_LOAD_W = 225e3  # the mean cabinet load LC-Opt-scale runs use (docs/twin.md, "The LC-Opt scenario")
@@ -330,7 +325,7 @@ def load_trace(
         trace_seed = _parse_seed(spec)
         n_steps = _hours_to_steps(24.0 if hours is None else hours, system.step_s)
         load_w, wet_bulb_c = _synthetic(trace_seed, system, n_steps, mean_w)
-        # the branches' profiles: the same job model for C*B racks of a third of the load each
+        # the branches' profiles: the shipped day's CDU columns, drawn by seed (data spread)
         profiles = _synthetic_profiles(trace_seed, system, n_steps) if scen.branch_spread == "data" else None
         name = f"synthetic:{trace_seed}"
     else:
