@@ -34,6 +34,7 @@ import numpy as np
 from lcmesh.bench.machine import machine_info
 from lcmesh.twin.controllers import Controller, Observation, make_controller
 from lcmesh.twin.controllers.static import APPROACH_10F_K
+from lcmesh.twin.kpi import cooling_energies_kwh
 from lcmesh.twin.plant import Plant, PlantAction
 from lcmesh.twin.run import run_twin, save_figure
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription, load_system
@@ -126,7 +127,7 @@ def _run(plant: Plant, trace: Trace, controller: Controller) -> dict:
     misses = _Misses(plant, trace.n_steps)
     kpi = run_twin(plant, trace, controller, on_step=misses).kpi
     hours = trace.n_steps * trace.step_s / 3600.0
-    fan_kwh, pump_kwh = kpi["ct_power_kw_avg"] * hours, kpi["pump_power_kw_avg"] * hours
+    fan_kwh, pump_kwh = cooling_energies_kwh(kpi, hours)
     return {
         **misses.summary(),
         "d_blade_pct": kpi["d_blade_pct"],

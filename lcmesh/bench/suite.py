@@ -51,6 +51,7 @@ import numpy as np
 
 from lcmesh.bench.machine import machine_info
 from lcmesh.twin.controllers import Controller, make_controller
+from lcmesh.twin.kpi import cooling_energies_kwh
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.run import run_twin, save_figure
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription, load_system
@@ -135,7 +136,7 @@ def run_day(system: SystemDescription, trace: Trace, controller: Controller) -> 
     with Plant(system) as plant:
         run = run_twin(plant, trace, controller)
     kpi, hours = run.kpi, run.sim_seconds / 3600.0
-    fan_kwh, pump_kwh = kpi["ct_power_kw_avg"] * hours, kpi["pump_power_kw_avg"] * hours
+    fan_kwh, pump_kwh = cooling_energies_kwh(kpi, hours)
     return {
         "d_blade_pct": kpi["d_blade_pct"],
         "tower_fan_kwh": fan_kwh,

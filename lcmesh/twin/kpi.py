@@ -90,3 +90,8 @@ def _energy(out: Mapping[str, np.ndarray]) -> tuple[float, float, float, float]:
         float(out["energy_in_j"]), float(out["energy_rejected_j"]),
         float(out["energy_recovered_j"]), float(out["stored_energy_change_j"]),
     )  # fmt: skip
+
+
+def cooling_energies_kwh(kpi: dict, hours: float) -> tuple[float, float]:
+    """Tower-fan and pump energy (kWh) of a run of ``hours`` from its KPIs' mean powers."""
+    return kpi["ct_power_kw_avg"] * hours, kpi["pump_power_kw_avg"] * hours
