@@ -81,7 +81,7 @@ class TrainPlants:
         scenario = self.scenarios[seed % len(self.scenarios)]  # a seed's scenario is fixed, whatever the order
         config = EpisodeConfig(
             system=self.system_name, trace=f"synthetic:{seed}", scenario=scenario,
-            wet_bulb_offset_k=15.0 if scenario == "lcopt" else None, episode_steps=self.episode_steps,
+            wet_bulb_offset_k=None, episode_steps=self.episode_steps,  # each scenario's own (lcopt: +15 K)
         )  # fmt: skip
         return EpisodeDriver(config)
 
