@@ -7,6 +7,10 @@ import threading
 
 import pytest
 
+# The UIs the tests start plan chat questions with the regex rules: loading the local planner model in every
+# test mesh (and compose process) would cost minutes of the two cores; tests/llm/test_planner.py and
+# `lcmesh bench chat` exercise the LLM planner itself.
+os.environ.setdefault("LCMESH_UI_PLANNER", "rules")
 THREAD_EXIT_GRACE_S = 10.0  # a thread told to stop may still be on its way out when its owner returns
 _STARTED_BY: dict[threading.Thread, str] = {}  # a thread found running after a test -> that test's id
 

@@ -144,7 +144,8 @@ def run_bench_api(*, quick: bool = False, llm: bool = True, say: Callable[[str],
                             controller="g36", speed_factor=60.0, data_dir=root, ui_port=ui_port,
                             orchestration={"roles": ROLES}, connect_timeout_s=60.0)  # fmt: skip
     token = secrets.token_urlsafe(24)
-    ui_env = {"LCMESH_API_TOKEN": token, "LCMESH_UI_CHAT_RATE_PER_MIN": "100000", "LCMESH_UI_CHAT_BURST": "100000"}
+    ui_env = {"LCMESH_API_TOKEN": token, "LCMESH_UI_CHAT_RATE_PER_MIN": "100000", "LCMESH_UI_CHAT_BURST": "100000",
+              "LCMESH_UI_PLANNER": "rules"}  # template mode: no model at all (`bench chat` measures the LLM planner)
     demo = Demo(settings, say=lambda _line: None)
     demo.env.update(ui_env)
     url = f"http://127.0.0.1:{ui_port}"
@@ -181,7 +182,8 @@ def run_bench_api(*, quick: bool = False, llm: bool = True, say: Callable[[str],
 
 def _llm_mode(settings: MeshSettings, ui_env: dict, port: int, quick: bool, say: Callable[[str], None]) -> dict:
     """A second UI process phrasing with the local LLM; its latency, or why it could not run."""
-    env = child_env(None, **{**settings.to_env(), **ui_env, "LCMESH_UI_PORT": str(port), "LCMESH_UI_PHRASER": "llm"})
+    env = child_env(None, **{**settings.to_env(), **ui_env, "LCMESH_UI_PORT": str(port), "LCMESH_UI_PHRASER": "llm",
+                             "LCMESH_UI_PLANNER": "llm"})  # fmt: skip
     child = agent_child("ui", "ui-llm", env, settings.log_dir / "ui-llm.log").start()
     url = f"http://127.0.0.1:{port}"
     try:

@@ -87,7 +87,7 @@ class SensorNoise:
 
 @dataclass(frozen=True)
 class Injection:
-    """One injected fault: kind, zero-based location, size and the step it starts."""
+    """One injected fault: kind, zero-based index, size and the step it starts."""
 
     kind: str
     index: int  # cabinet, or tower * cells + cell for cell_out
@@ -95,9 +95,11 @@ class Injection:
     step: int
 
     def location(self, system: SystemDescription) -> str:
+        """Where the detector reports it: numbered from 1, ``cabinet_3``, ``tower_1/cell_2``."""
         if self.kind == "cell_out":
-            return "tower_{}/cell_{}".format(*divmod(self.index, system.towers.cells))
-        return f"cabinet_{self.index}"
+            tower, cell = divmod(self.index, system.towers.cells)
+            return f"tower_{tower + 1}/cell_{cell + 1}"
+        return f"cabinet_{self.index + 1}"
 
     def faults(self, system: SystemDescription) -> dict[str, np.ndarray]:
         C, N, m = system.cabinets.count, system.towers.count, system.towers.cells

@@ -4,6 +4,6 @@ Each area registers its commands on the shared apps in its own module; importing
 """
 
 from lcmesh.cli.common import app
-from lcmesh.cli import api, control, explain, llm, mesh, tools, twin  # noqa: F401  (each registers its commands)
+from lcmesh.cli import api, chat, control, explain, llm, mesh, planner, tools, twin  # noqa: F401  (each registers)
 
 __all__ = ["app"]

@@ -121,12 +121,18 @@ def bench_explain(
     quick: Annotated[bool, typer.Option(help="2 h instead of 24 h, one repeat (smoke run)")] = False,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
 ) -> None:
-    """Facts, renderer and evaluator speed; explanation scores over a G36 day; the test-set verdict."""
+    """Facts, renderer and evaluator speed; explanation scores over a G36 day; the judge's precision and recall on
+    the outside corpus (test part; dev beside it); the 40-record regression set."""
     from lcmesh.mesh.tools.explain_eval.bench import render_markdown_section, run_bench_explain
 
     with console.status("benchmarking explanations"):
         result = run_bench_explain(quick=quick)
     day, ts = result["day"]["aggregate"], result["testset"]
     console.print(f"grounding {day['numeric_grounding']:.4f}  coverage {day['coverage']:.4f}  direction "
-                  f"{day['direction_consistency']:.4f}  test set {ts['matching']}/{ts['records']}")  # fmt: skip
+                  f"{day['direction_consistency']:.4f}  40-record set {ts['matching']}/{ts['records']}")  # fmt: skip
+    for part in ("test", "dev"):
+        c = result["corpus"][part]
+        recalls = "  ".join(f"{k} {v['recall']:.3f}" for k, v in c["per_flag"].items() if v["recall"] is not None)
+        console.print(f"corpus {part}{' (tuned on)' if part == 'dev' else ''}: {c['texts']} texts; correct texts "
+                      f"flagged {c['correct_flagged_share']:.3f}; recall {recalls}")  # fmt: skip
     write_bench(json_out, markdown, "explain", result, render=render_markdown_section)

@@ -60,6 +60,10 @@ class PlantState(Message):
     outputs: dict[str, list[float]]
     faults_active: bool = False
     period_s: float = Field(gt=0, description="wall seconds per control period at the current speed factor")
+    scenario: str = Field("frontier", max_length=64, description="how the trace drives the plant (docs/traces.md, "
+                          "Scenarios): whether `wet_bulb_k` is the recorded one or a design day's")
+    wet_bulb_offset_k: float = Field(0.0, ge=-100, le=100, description="K added to the trace's wet bulb (the "
+                                     "scenario's and LCMESH_WET_BULB_OFFSET_K); `wet_bulb_k` includes it")
 
 
 class ActionModel(_Part):
@@ -279,12 +283,15 @@ FaultKind = Literal["pump_degradation", "valve_stuck", "cell_out", "sensor_bias"
 
 
 class FaultRequest(_Part):
-    """Inject a twin fault: pump degradation / valve stuck / sensor bias per cabinet, cell out per tower cell."""
+    """Inject a twin fault: pump degradation / valve stuck / sensor bias per cabinet, cell out per tower cell.
+
+    A person writes these, so cabinets, towers and cells count from 1, as alerts name them (``cabinet_2``).
+    """
 
     kind: FaultKind
-    cabinet: int | None = Field(None, ge=0)
-    tower: int | None = Field(None, ge=0)
-    cell: int | None = Field(None, ge=0)
+    cabinet: int | None = Field(None, ge=1, description="1-based")
+    tower: int | None = Field(None, ge=1, description="1-based")
+    cell: int | None = Field(None, ge=1, description="1-based, within the tower")
     value: float = Field(1.0, description="degradation 0..0.95, bias in K, 1/0 for stuck and out")
 
 
@@ -312,6 +319,7 @@ def output_shapes(system: SystemDescription) -> dict[str, tuple[int, ...]]:
 def plant_state_from_outputs(
     out: dict[str, np.ndarray], *, source: str, system: SystemDescription, run_id: str, step: int,
     time_s: float, wet_bulb_k: float, blade_power_w: np.ndarray, period_s: float, faults_active: bool = False,
+    scenario: str = "frontier", wet_bulb_offset_k: float = 0.0,
 ) -> PlantState:  # fmt: skip
     """The PlantState message for plant outputs `out` (``Plant.out``) and the coming step's inputs."""
     return PlantState.model_construct(
@@ -319,7 +327,8 @@ def plant_state_from_outputs(
         run_id=run_id, step=step, time_s=float(time_s), wet_bulb_k=float(wet_bulb_k),
         blade_power_w=np.asarray(blade_power_w, dtype=float).tolist(),
         outputs={name: np.asarray(value, dtype=float).ravel().tolist() for name, value in out.items()},
-        faults_active=faults_active, period_s=float(period_s),
+        faults_active=faults_active, period_s=float(period_s), scenario=scenario,
+        wet_bulb_offset_k=float(wet_bulb_offset_k),
     )  # fmt: skip
 
 

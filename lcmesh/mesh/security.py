@@ -46,6 +46,13 @@ def _role_id(role: str) -> str:
     return f"{role}$*"
 
 
+def _ui_tools() -> list[str]:
+    """The data tools the UI agent serves (the Sensor serves the physics tools and the what-ifs)."""
+    from lcmesh.mesh.tools.plant_data import DATA_TOOLS, PLANT_TOOLS
+
+    return [name for name, *_ in DATA_TOOLS if name not in PLANT_TOOLS]
+
+
 def grants(role: str) -> dict[str, tuple[str, ...]]:
     """What `role` may send into the router: {key below lcmesh/<site>/: message kinds}. Reads come on top."""
     own = {
@@ -61,7 +68,8 @@ def grants(role: str) -> dict[str, tuple[str, ...]]:
         "monitor": {"monitor/report": (PUT, *SERVE)},
         "configuration": {"config/*": (PUT, *SERVE), "configure/*/*": SERVE},
         "orchestration": {f"cmd/{_role_id('orchestration')}/*": SERVE, "cmd/*/*": (QUERY,)},
-        "ui": {"configure/ui/*": (QUERY,), "cmd/*/*": (QUERY,), "tools/*": (QUERY,)},
+        "ui": {"configure/ui/*": (QUERY,), "cmd/*/*": (QUERY,), "tools/*": (QUERY,),
+               **{f"tools/{name}": SERVE for name in _ui_tools()}},  # the assistant's data tools, no others
         "operator": {"configure/operator/*": (QUERY,), "tools/*": (QUERY,)},  # cmd/*: only orchestration and UI
     }
     if role not in extra:

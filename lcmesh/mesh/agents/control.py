@@ -19,7 +19,6 @@ that needs the plant and the trace, like ``lookahead``) is replaced by G36 with 
 
 from __future__ import annotations
 
-import importlib
 import logging
 import threading
 import time
@@ -34,6 +33,8 @@ from lcmesh.mesh.messages import (
     ActionModel, AppliedAction, Explanation, FactModel, MeshConfig, PlantState, Proposal, new_id,
     plant_state_to_observation, utc_now,
 )  # fmt: skip
+from lcmesh.mesh.tools.explain import render_explanation
+from lcmesh.mesh.tools.facts import Fact, cabinet_decision_facts
 from lcmesh.twin.controllers import Controller, ControllerError, Observation, make_controller, mesh_refusal
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription, load_system
@@ -84,21 +85,15 @@ def decision_facts(
             return [FactModel(name=str(k), value=_plain(v)) for k, v in items]
         return [FactModel.model_validate(_fact_dict(f)) for f in facts]
     cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
-    try:
-        toolbox = importlib.import_module("lcmesh.mesh.tools.facts")
-    except ImportError:
-        return key_facts(obs, action, previous)
-    facts = toolbox.cabinet_decision_facts(system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
+    facts = cabinet_decision_facts(system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
     return [FactModel.model_validate(_fact_dict(f)) for f in facts]
 
 
 def explanation_text(facts: list[FactModel]) -> str:
     """The deterministic short explanation (toolbox renderer), or the facts' sentences joined."""
     try:
-        explain = importlib.import_module("lcmesh.mesh.tools.explain")
-        toolbox = importlib.import_module("lcmesh.mesh.tools.facts")
-        return explain.render_explanation([toolbox.Fact.model_validate(f.model_dump()) for f in facts], "short")
-    except Exception:  # renderer missing or facts not of its kind (a controller's own)
+        return render_explanation([Fact.model_validate(f.model_dump()) for f in facts], "short")
+    except (ValueError, KeyError, TypeError):  # facts not of the toolbox's kind (a controller's own)
         return "; ".join(f.text for f in facts if f.text) or ", ".join(f"{f.name} = {f.value}" for f in facts)
 
 

@@ -144,7 +144,8 @@ class SensorAgent(Agent):
 
     def _inject_fault(self, payload: bytes | None) -> CommandReply:
         if not payload:
-            raise QueryError('send a FaultRequest JSON, e.g. {"kind": "pump_degradation", "cabinet": 2, "value": 0.5}')
+            raise QueryError('send a FaultRequest JSON, e.g. {"kind": "pump_degradation", "cabinet": 2, "value": 0.5} '
+                             "(cabinets, towers and cells numbered from 1)")
         request = FaultRequest.model_validate_json(payload)
         faults = self.twin.inject_fault(request)
         log.info("fault injected: %s", request.model_dump_json())
@@ -167,7 +168,7 @@ class SensorAgent(Agent):
             return
         context = registry.ToolContext(system=self.twin.system, plant=self.twin.plant, lock=self.twin.lock,
                                        latest_out=self.twin.plant.out)  # fmt: skip
-        for name in registry.TOOLS:
+        for name in registry.served_tools(data=False):
 
             def answer(payload: bytes | None, name=name):
                 with self.twin.lock:  # the outputs a tool reads are not rewritten by a step meanwhile

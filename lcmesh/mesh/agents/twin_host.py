@@ -18,7 +18,7 @@ from lcmesh.mesh.messages import ActionModel, FaultRequest, PlantState, new_id, 
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.plant import Plant, PlantAction
 from lcmesh.twin.system import SystemDescription, load_system
-from lcmesh.twin.traces import Trace, load_trace
+from lcmesh.twin.traces import Trace, load_trace, scenario_named
 
 
 class TwinHost:
@@ -31,6 +31,8 @@ class TwinHost:
         self.trace: Trace = load_trace(
             trace_spec, self.system, scenario=scenario, wet_bulb_offset_k=wet_bulb_offset_k
         )
+        # every plant state says what its wet bulb holds besides the recorded one (the page labels it)
+        self.wet_bulb_offset_k = scenario_named(scenario).wet_bulb_offset_k + wet_bulb_offset_k
         self.plant = Plant(self.system, instance_name=instance_name)
         self.lock = threading.RLock()  # held while stepping, injecting faults or running a what-if
         self.power_w = np.zeros(self.system.n_blade_groups)
@@ -78,7 +80,8 @@ class TwinHost:
         return plant_state_from_outputs(
             self.plant.out, source=source, system=self.system, run_id=self.run_id, step=self.step,
             time_s=self.step * self.system.step_s, wet_bulb_k=wet_bulb_k, blade_power_w=power, period_s=period_s,
-            faults_active=self.plant.faults.active,
+            faults_active=self.plant.faults.active, scenario=self.trace.scenario,
+            wet_bulb_offset_k=self.wet_bulb_offset_k,
         )  # fmt: skip
 
     def advance(self, action: PlantAction) -> None:
@@ -136,10 +139,11 @@ class TwinHost:
             self.plant.close()
 
 
-def _index(name: str, value: int | None, count: int) -> int:
-    if value is None or not 0 <= value < count:
-        raise ValueError(f"`{name}` must be an index in [0, {count - 1}], got {value}")
-    return value
+def _index(name: str, number: int | None, count: int) -> int:
+    """The array index of a 1-based `number` (a FaultRequest's cabinet, tower or cell); ValueError naming it."""
+    if number is None or not 1 <= number <= count:
+        raise ValueError(f"`{name}` must be in 1..{count} (numbered from 1), got {number}")
+    return number - 1
 
 
 def _range(name: str, value: float, low: float, high: float) -> float:

@@ -64,7 +64,7 @@ class Clamp(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     field: str
-    index: list[int] = []
+    index: list[int] = Field([], description="0-based array index into `field` (the UI's API shows it from 1)")
     proposed: float
     applied: float
     reason: str
@@ -151,7 +151,7 @@ def _limit_valves(proposed: np.ndarray, previous: np.ndarray, limits: GuardrailL
         elif proposed[i, j] < v_min:
             reason = f"below v_min = {v_min}"
         else:
-            reason = f"cabinet {i} split renormalized to fractions in [{v_min}, 1] summing to 1"
+            reason = f"cabinet {i + 1} split renormalized to fractions in [{v_min}, 1] summing to 1"
         clamps.append(Clamp(field="valve_fractions", index=[int(i), int(j)], proposed=float(proposed[i, j]),
                             applied=float(projected[i, j]), reason=reason))  # fmt: skip
     return projected

@@ -20,7 +20,9 @@ model's own zero is checked only with an allowance for how far a plant may be of
 detector never reads the plant's true parameters, only its outputs.
 
 A finding is raised after `persistence_steps` consecutive steps of evidence and stays active until its
-clear condition holds for `clear_steps` steps. Locations are zero-based: ``cabinet_3``, ``tower_1/cell_0``.
+clear condition holds for `clear_steps` steps. Locations, texts and the `branch` evidence count from 1, as a
+person reads them (``cabinet_3`` is the third cabinet, ``tower_1/cell_2`` the first tower's second cell);
+the detector's arrays stay 0-based.
 """
 
 from __future__ import annotations
@@ -449,8 +451,8 @@ class FaultDetector:
     def _check_overtemperature(self, x):
         cfg = self.config
         hot = np.where(np.isfinite(x["branch_max_temp_k"]), x["branch_max_temp_k"], -np.inf)
-        hottest = hot.max(axis=1)
-        self._ev["overtemperature"].update(hottest_branch_temp_k=hottest, branch=hot.argmax(axis=1),
+        hottest = hot.max(axis=1)  # the branch evidence is 1-based: alerts show it to people
+        self._ev["overtemperature"].update(hottest_branch_temp_k=hottest, branch=hot.argmax(axis=1) + 1,
                                            limit_k=np.full(self.C, cfg.overtemp_warning_k))  # fmt: skip
         return hottest > cfg.overtemp_warning_k, hottest < cfg.overtemp_warning_k - cfg.overtemp_hysteresis_k
 
@@ -491,10 +493,12 @@ class FaultDetector:
         ev["head_loss_slope_per_h"] = np.atleast_1d(trend.slope) * 3600.0
 
     # --- findings ----------------------------------------------------------------------------
-    def _location(self, kind: str, i: int) -> str:
+    def location(self, kind: str, i: int) -> str:
+        """Where slot `i` of `kind` is, numbered from 1: ``cabinet_3``, ``tower_1/cell_2``."""
         if kind == "cell_out":
-            return "tower_{}/cell_{}".format(*divmod(i, self.m))
-        return f"cabinet_{i}"
+            tower, cell = divmod(i, self.m)
+            return f"tower_{tower + 1}/cell_{cell + 1}"
+        return f"cabinet_{i + 1}"
 
     def _finding(self, slot: int, time_s: float) -> Finding:
         kind, i = self._slot_kind[slot], self._slot_index[slot]
@@ -503,7 +507,7 @@ class FaultDetector:
         evidence = {name: value for name, value in d.items() if np.isfinite(value)}  # JSON has no inf
         # built from checked numbers only, so validation is skipped (this runs for every active finding, every step)
         return Finding.model_construct(
-            kind=kind, severity=severity, location=self._location(kind, i), message=message, evidence=evidence,
+            kind=kind, severity=severity, location=self.location(kind, i), message=message, evidence=evidence,
             prescription=prescription, predicted_failure_s=eta, first_seen_s=float(self._latch.first_seen_s[slot]),
             time_s=float(time_s),
         )  # fmt: skip

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from lcmesh.mesh.tools import stats, thermo
+from lcmesh.mesh.tools import plant_data, stats, thermo
 from lcmesh.twin.system import SystemDescription
 
 if TYPE_CHECKING:  # the twin (and fmpy) load only where a tool runs it
@@ -32,6 +32,8 @@ class ToolContext:
     plant: Plant | None = None
     lock: Any = None  # a threading.Lock (or any context manager) held while a tool uses `plant`
     latest_out: Mapping[str, np.ndarray] | None = None
+    data: Any = None  # a plant_data.PlantData (state, history, config): the operator's tools read it
+
 
 
 class ToolError(ValueError):
@@ -60,6 +62,7 @@ class ToolResult(BaseModel):
     tool: str
     result: dict[str, Any] | None = None
     error: str | None = None
+    not_ready: bool = False  # the data the tool needs has not arrived yet (retry later), not a bad request
 
 
 # --- heat_balance -----------------------------------------------------------------------------------
@@ -338,6 +341,16 @@ TOOLS: dict[str, ToolSpec] = {
                  "the live twin (restored afterwards)", WhatIfRequest, WhatIfResponse, _whatif),
     )
 }  # fmt: skip
+TOOLS.update({name: ToolSpec(name, description, request, response, call)
+              for name, description, request, response, call in plant_data.DATA_TOOLS})  # fmt: skip
+
+
+DATA_TOOLS = tuple(name for name, *_ in plant_data.DATA_TOOLS if name not in plant_data.PLANT_TOOLS)
+
+
+def served_tools(*, data: bool) -> list[str]:
+    """The tools a host serves on the bus: the twin's host the physics and what-if tools, the UI the data tools."""
+    return [name for name in TOOLS if (name in DATA_TOOLS) == data]
 
 
 def invoke(name: str, payload: Mapping[str, Any] | str | bytes | None, context: ToolContext) -> ToolResult:
@@ -359,6 +372,8 @@ def invoke(name: str, payload: Mapping[str, Any] | str | bytes | None, context: 
         response = spec.call(request, context)
     except (ToolError, ValueError) as exc:
         return ToolResult(ok=False, tool=name, error=str(exc))
+    except (plant_data.NotReady, FileNotFoundError) as exc:
+        return ToolResult(ok=False, tool=name, error=str(exc), not_ready=True)
     return ToolResult(ok=True, tool=name, result=response.model_dump(mode="json", exclude_none=True))
 
 

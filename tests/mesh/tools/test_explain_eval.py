@@ -176,3 +176,6 @@ def test_bench_explain_quick_updates_its_section(tmp_path):
     assert all(result["day"]["targets_met"].values())
     text = md.read_text()
     assert "kept" in text and "<!-- bench:explain:start -->" in text and "| coverage (mean) | 1.0000 | 1.0 |" in text
+    corpus = result["corpus"]
+    assert corpus["test"]["texts"] > 0 and corpus["dev"]["texts"] > 0 and "rows" not in corpus["test"]
+    assert "Outside corpus" in text and "| correct texts with any flag |" in text

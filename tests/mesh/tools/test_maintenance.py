@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -56,7 +57,7 @@ def test_pump_degradation_is_flagged_at_its_cabinet_within_minutes(plant):
     det, raised = _run_trace(plant, FRONTIER_DAY, 1.5, inject_at_h=1.0,
                              faults=dict(pump_degradation=[0, 0, 0.2, 0, 0]))  # fmt: skip
     k, f = _first(raised, "pump_degradation")
-    assert f.location == "cabinet_2" and 0 <= k <= 8  # <= 2 simulated minutes
+    assert f.location == "cabinet_3" and 0 <= k <= 8  # <= 2 simulated minutes
     assert f.evidence["head_loss"] == pytest.approx(0.2, abs=0.04)
     assert "20%" in f.message or "19%" in f.message or "21%" in f.message
     assert {g.kind for _, g in raised} == {"pump_degradation"}
@@ -67,7 +68,7 @@ def test_sensor_bias_is_flagged_with_its_size_and_sign(plant):
     bias = dict(sensor_bias_k=[0, 0, 0, -0.8, 0])
     det, raised = _run_trace(plant, "synthetic:1000", 1.5, inject_at_h=1.0, faults=bias)
     k, f = _first(raised, "sensor_bias")
-    assert f.location == "cabinet_3" and 0 <= k <= 20  # <= 5 simulated minutes
+    assert f.location == "cabinet_4" and 0 <= k <= 20  # <= 5 simulated minutes
     assert f.evidence["bias_estimate_k"] == pytest.approx(-0.8, abs=0.25)
     assert "above its setpoint" in f.prescription  # reads low -> the real supply runs warm
     assert {g.kind for _, g in raised} == {"sensor_bias"}
@@ -77,9 +78,9 @@ def test_cell_out_is_flagged_at_the_right_cell(plant):
     det, raised = _run_trace(plant, FRONTIER_DAY, 1.5, inject_at_h=1.0,
                              faults=dict(cell_out=[[0, 0], [1, 0]]))  # fmt: skip
     k, f = _first(raised, "cell_out")
-    assert f.location == "tower_1/cell_0" and 0 <= k <= 40  # <= 10 simulated minutes
+    assert f.location == "tower_2/cell_1" and 0 <= k <= 40  # <= 10 simulated minutes
     assert f.evidence["fan_power_w"] < 1e3
-    assert {g.location for _, g in raised} == {"tower_1/cell_0"}
+    assert {g.location for _, g in raised} == {"tower_2/cell_1"}
 
 
 def test_cell_out_is_flagged_while_the_fans_idle(plant):
@@ -98,7 +99,7 @@ def test_cell_out_is_flagged_while_the_fans_idle(plant):
             assert out["fan_speed"].max() < 0.02 and out["cells_active"].tolist() == [2, 2]  # idle fans, both cells on
         det.update((k + 1) * STEP_S, out, 285.0, action)
         raised += [(k, f.kind, f.location) for f in det.last_raised]
-    assert [(kind, loc) for _, kind, loc in raised] == [("cell_out", "tower_0/cell_1")]
+    assert [(kind, loc) for _, kind, loc in raised] == [("cell_out", "tower_1/cell_2")]
     assert k_out <= raised[0][0] <= k_out + 4
 
 
@@ -114,12 +115,12 @@ def test_stuck_valve_is_flagged_when_the_load_moves(plant):
         if k == k_stuck:
             plant.set_faults(valve_stuck=[0, 1, 0, 0, 0])
         if k == k_load:
-            power[3:6] *= 2.0  # cabinet 1's branches
+            power[3:6] *= 2.0  # cabinet 2's branches (index 1)
         out = plant.step(power, 290.0, action)
         det.update((k + 1) * STEP_S, noise.apply(out, rng), 290.0, action)
         raised += [(k, f) for f in det.last_raised if f.kind in FAULT_KINDS]
     k, f = _first(raised, "valve_stuck")
-    assert f.location == "cabinet_1" and k_load <= k <= k_load + 40
+    assert f.location == "cabinet_2" and k_load <= k <= k_load + 40
     assert [g.kind for _, g in raised] == ["valve_stuck"]
     assert f.evidence["supply_error_k"] > 0.45  # it had to be outside the deadband to be seen
 
@@ -149,7 +150,7 @@ def test_valve_exercise_finds_a_valve_stuck_where_it_would_stay_and_spares_healt
         raised += [(k, f) for f in det.last_raised if f.kind in FAULT_KINDS]
     assert tested == set(range(s.cabinets.count))
     k, f = _first(raised, "valve_stuck")
-    assert [(g.kind, g.location) for _, g in raised] == [("valve_stuck", "cabinet_3")]
+    assert [(g.kind, g.location) for _, g in raised] == [("valve_stuck", "cabinet_4")]
     assert exercise.under_test(k - 3)[3]  # found during its stroke, not by chance
     with pytest.raises(ValueError, match="shorter than"):
         ValveExercise(s, period_s=30.0)
@@ -178,7 +179,7 @@ def test_a_slowly_degrading_pump_gets_a_failure_prediction(plant):
         out = plant.step(power, 290.0, action)
         findings = det.update((k + 1) * STEP_S, out, 290.0, action)
         finding = next((f for f in findings if f.kind == "pump_degradation"), finding)
-    assert finding is not None and finding.location == "cabinet_4"
+    assert finding is not None and finding.location == "cabinet_5"
     limit = finding.evidence["head_loss_limit"]  # ~49 % at the 27.5 psi dp setpoint (test_thermo.py)
     true_eta_s = (limit - 0.35) / ramp_per_step * STEP_S
     assert finding.predicted_failure_s == pytest.approx(true_eta_s, rel=0.5)
@@ -197,15 +198,44 @@ def test_overtemperature_and_trend(plant):
     plant.reset()
     kinds_seen = {}
     for k in range(360):
-        power[6:9] = _branch_w(s, 0.8 + k / 187.5)  # cabinet 2 ramps to 2.7x its design load
+        power[6:9] = _branch_w(s, 0.8 + k / 187.5)  # cabinet 3 (index 2) ramps to 2.7x its design load
         out = plant.step(power, 290.0, action)
         for f in det.update((k + 1) * STEP_S, out, 290.0, action):
             kinds_seen.setdefault(f.kind, (k, f))
     k_trend, trend = kinds_seen["trend"]
     k_hot, hot = kinds_seen["overtemperature"]
-    assert trend.location == hot.location == "cabinet_2"
+    assert trend.location == hot.location == "cabinet_3"
     assert k_trend < k_hot and trend.predicted_failure_s > 0  # the trend warns before the limit is crossed
     assert hot.evidence["hottest_branch_temp_k"] > 313.15 and "°C" in hot.message
+    assert hot.message.startswith(f"Branch {int(hot.evidence['branch'])} of cabinet 3 ")  # numbered from 1
+
+
+# one finding's evidence per kind, at the first slot (cabinet 1, or tower 1's cell 1); values only shape the text
+FIRST_SLOT_EVIDENCE = {
+    "pump_degradation": dict(head_loss=0.3, head_loss_limit=0.49, pump_speed=0.9, flow_kg_s=10.0,
+                             expected_flow_kg_s=12.0, time_to_limit_s=np.inf, head_loss_slope_per_h=0.0),
+    "sensor_bias": dict(bias_estimate_k=1.0, measured_supply_k=303.15, implied_supply_k=302.15),
+    "valve_stuck": dict(supply_error_k=1.0, valve_position=0.5, owed_travel=0.2),
+    "cell_out": dict(cells_active=1, fan_power_w=0.0, heat_w=0.0, fan_speed=0.5, stage_up_demand_s=0.0,
+                     tower_heat_w=1e6),
+    "overtemperature": dict(branch=1, hottest_branch_temp_k=315.0, limit_k=313.15),
+    "trend": dict(time_to_limit_s=600.0, slope_k_per_s=1e-3, slope_low_k_per_s=5e-4, hottest_branch_temp_k=310.0,
+                  limit_k=313.15),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("kind", sorted(FIRST_SLOT_EVIDENCE))
+def test_alert_texts_and_locations_count_from_one(lcopt5, kind):
+    """The detector's slot 0 is cabinet 1 (tower 1, cell 1) wherever a person reads it: never "cabinet 0"."""
+    from lcmesh.mesh.tools.maintenance_text import DESCRIBE
+
+    det = FaultDetector(lcopt5)
+    _, message, prescription, _ = DESCRIBE[kind](det, 0, FIRST_SLOT_EVIDENCE[kind])
+    text = f"{message} {prescription}"
+    assert re.search(r"\b(cabinet|CDU|tower|cell|branch) 0\b", text, re.I) is None, text
+    assert re.search(r"\b(cabinet|CDU|tower) 1\b", text), text
+    assert det.location(kind, 0) == ("tower_1/cell_1" if kind == "cell_out" else "cabinet_1")
+    assert det.location(kind, lcopt5.towers.cells) == ("tower_2/cell_1" if kind == "cell_out" else "cabinet_3")
 
 
 def test_bad_input_is_named_and_nan_does_not_crash(plant):

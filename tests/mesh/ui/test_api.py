@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from lcmesh.mesh.history import HistoryReader
 from tests.mesh.conftest import wait_until
@@ -24,6 +25,12 @@ def test_health_and_state_match_the_sensor(api, ui_mesh, lcopt5):
     np.testing.assert_allclose([b for c in state["cabinets"] for b in c["blade_temps_c"]],
                                np.asarray(stored.outputs["blade_temp_k"]) - K0, atol=1e-3)  # fmt: skip
     assert abs(state["totals"]["ct_fan_power_kw"] - stored.outputs["ct_fan_power_w"][0] / 1e3) < 1e-3
+    it_w, fan_w, pump_w = (stored.outputs[k][0] for k in ("it_power_w", "ct_fan_power_w", "pump_power_w"))
+    assert state["totals"]["cooling_pue"] == pytest.approx((it_w + fan_w + pump_w) / it_w, abs=1e-4)
+    np.testing.assert_allclose([t["approach_k"] for t in state["towers"]], stored.outputs["approach_k"], atol=1e-3)
+    np.testing.assert_allclose([c["supply_temp_measured_c"] for c in state["cabinets"]],
+                               np.asarray(stored.outputs["supply_temp_measured_k"]) - K0, atol=1e-3)  # fmt: skip
+    assert (state["scenario"], state["wet_bulb_offset_k"], state["wet_bulb_note"]) == ("frontier", 0.0, None)
     assert state["controller"]["source"] in ("g36", "hold")
     cabinet = api.get("/api/state/cabinets/2").json()
     assert cabinet["cabinet"] == 2 and set(cabinet) >= {"supply_temp_c", "valve_fractions", "dp_psi"}
@@ -79,7 +86,8 @@ def test_agents_decisions_alerts_config(api, ui_mesh):
                       >= {"sensor", "control", "configuration", "monitor", "ui"}, 10)  # fmt: skip
     rows = api.get("/api/decisions", params={"limit": 5}).json()["decisions"]
     assert len(rows) == 5 and rows[0]["step"] > rows[-1]["step"]
-    assert {"source_controller", "source_version", "clamps", "explanation", "fallback"} <= set(rows[0])
+    assert {"source_controller", "source_version", "clamps", "explanation", "fallback", "changes"} <= set(rows[0])
+    assert all(isinstance(r["changes"], list) for r in rows), "each row says what changed from the one before it"
     assert any(r["explanation"] for r in rows), "the Control agent's explanations join the decisions"
     assert len(rows[0]["action"]["supply_temp_setpoint_c"]) == 5
     doc = api.get("/api/config").json()
@@ -128,7 +136,7 @@ def test_controller_switch_and_manual_setpoints_reach_the_plant(api, ui_mesh):
     # a split that does not sum to 1 is the guardrails' to rescale, and the answer says so
     r = api.post("/api/control/setpoints", json={"valve_fractions": [0.5, 0.6, 0.1], "cabinets": [4]}, headers=auth)
     assert r.status_code == 200, r.text
-    assert any(c["field"] == "valve_fractions" and c["index"][0] == 3 for c in r.json()["clamps_expected"])
+    assert any(c["field"] == "valve_fractions" and c["index"][0] == 4 for c in r.json()["clamps_expected"])  # from 1
     r = api.post("/api/control/setpoints", json={"supply_temp_setpoint_c": 30, "cabinets": [7]}, headers=auth)
     assert r.status_code == 404
     split = [0.6, 0.25, 0.15]
@@ -144,11 +152,15 @@ def test_controller_switch_and_manual_setpoints_reach_the_plant(api, ui_mesh):
         return next((d for d in rows if d["source_controller"] == "manual" and
                      any(c["field"] == "supply_temp_setpoint_k" for c in d["clamps"])), None)  # fmt: skip
 
-    assert wait_until(manual_applied, 10), "the manual setpoints are applied, clamped by the guardrails"
+    applied = wait_until(manual_applied, 10)
+    assert applied, "the manual setpoints are applied, clamped by the guardrails"
+    assert {tuple(c["index"]) for c in applied["clamps"] if c["field"] == "supply_temp_setpoint_k"} == {(2,)}, \
+        "the clamp names cabinet 2 as the operator does: counted from 1"
     assert wait_until(lambda: api.get("/api/state/cabinets/2").json()["valve_fractions"][0] > 0.5, 10)
     # the chat explains the operator's own decision from the stored facts
     answer = api.post("/api/chat", json={"message": "why did cabinet 2 open branch 1?"}).json()
-    assert answer["intent"] == "why" and "opened cabinet 2's branch 1" in answer["answer"], answer["answer"]
+    assert answer["intent"] == "decision", answer
+    assert "manual): opened the valve of branch 1 of cabinet 2 from " in answer["answer"], answer["answer"]
     assert "manual" in answer["answer"] and answer["grounded"]
     r = api.post("/api/control/mode", json={"controller": "g36", "mode": "auto"}, headers=auth)
     assert r.status_code == 200 and r.json()["mode"] == "auto"
@@ -160,10 +172,11 @@ def test_chat_contract_and_input_errors(api):
     assert r.status_code == 200
     body = r.json()
     assert set(body) >= {"answer", "facts"} and body["facts"] and body["intent"] == "rank" and body["grounded"]
-    facts = {f["name"]: f for f in body["facts"]}
-    cabinet = facts["first_cabinet"]
-    assert f"cabinet {cabinet['display']} runs hottest" in body["answer"] and cabinet["source"] == "state"
-    assert facts["first_peak"]["display"] in body["answer"] and facts["first_peak"]["unit"] == "degC"
+    first = next(f for f in body["facts"] if f["ref"].get("rank") == 1)
+    assert f"{first['entity'].capitalize()} has the highest blade temperature: {first['display']}" in body["answer"]
+    assert first["source"] == "tool" and first["quantity"] == "blade_temp" and first["unit"] == "degC"
+    assert body["plan"] == [{"tool": "rank", "args": {"quantity": "blade_temp", "order": "highest"}}] or \
+        body["plan"][0]["tool"] == "rank"
     assert api.post("/api/chat", json={}).status_code == 422
     r = api.post("/api/chat", json={"message": ""})
     assert r.status_code == 422 and "`message`" in r.json()["detail"]
@@ -177,7 +190,7 @@ def test_chat_proposes_commands_and_never_applies_them(api):
     before = api.get("/api/config").json()["version"]
     body = api.post("/api/chat", json={"message": "set the supply setpoint of cabinet 3 to 29 °C"}).json()
     cmd = body["proposed_command"]
-    assert body["intent"] == "command" and cmd["path"] == "/api/control/setpoints"
+    assert body["intent"] == "propose_change" and cmd["path"] == "/api/control/setpoints"
     assert cmd["body"]["supply_temp_setpoint_c"][2] == 29.0
     body = api.post("/api/chat", json={"message": "switch to the static controller; DROP TABLE actions;"}).json()
     assert body["proposed_command"] == {"method": "POST", "path": "/api/control/mode", "body": {"controller": "static"},
@@ -288,3 +301,20 @@ def test_an_injected_fault_shows_as_alert_metric_and_chat_answer(api, ui_mesh):
     finally:
         bus.request(keys.cmd(site, "sensor", "inject_fault"), CommandReply, FaultRequest(kind="clear"))
         bus.close()
+
+
+def test_the_ui_serves_the_assistants_data_tools_on_the_bus(ui_mesh):
+    """One registry: the tools the chat plans with are the ones any agent can query on tools/{name}."""
+    import json
+
+    from lcmesh.mesh import keys
+
+    other = next(a for a in ui_mesh.agents if a.role == "control")  # a role allowed to query tools
+    replies = other.bus.query(keys.tool(ui_mesh.settings.site, "rank"), b'{"quantity": "blade_temp", "top": 2}',
+                              timeout_s=5.0)  # fmt: skip
+    assert replies and replies[0].ok, replies
+    result = json.loads(replies[0].payload)["result"]
+    assert [v["kind"] for v in result["ranked"]] == ["cabinet", "cabinet"] and result["count"] == 5
+    replies = other.bus.query(keys.tool(ui_mesh.settings.site, "plant_state"), b'{"quantity": "valve", "cabinet": 9}',
+                              timeout_s=5.0)  # fmt: skip
+    assert replies and not replies[0].ok and b"there is no cabinet 9" in replies[0].payload

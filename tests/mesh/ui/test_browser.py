@@ -1,15 +1,21 @@
 """The web page in headless Chromium (driven through chromedriver's W3C WebDriver HTTP API with httpx).
 
-It loads the page from the UI agent of the real test mesh, sees the step counter and the plots
-move with the plant, asks the chat a question and gets an answer with facts, switches the
+It loads the page from the UI agent of the real test mesh at common screen sizes and finds the
+chat box on screen without scrolling, asks it a question and sees the answer, reads the "Now"
+panel (cooling PUE, tower approach, the wet bulb's label) and each CDU's measured supply beside
+its setpoint, checks the power axis never goes below 0 kW, holds the plant and sees the decision
+feed count the unchanged steps on one row instead of adding a row per step, switches the
 controller with the token, and takes a screenshot (to ``$LCMESH_UI_SCREENSHOT`` when set, which
-is how docs/img/ui.png is made). Skipped with the reason when Chromium or chromedriver is absent.
+is how docs/img/ui.png is made). Every wait polls the page; nothing is timed. Skipped with the
+reason when Chromium or chromedriver is absent.
 """
 
 from __future__ import annotations
 
 import base64
+import json
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -57,6 +63,9 @@ class Browser:
     def js(self, script: str):
         return self._value(self.http.post("/execute/sync", json={"script": script, "args": []}))
 
+    def size(self, width: int, height: int) -> None:
+        self._value(self.http.post("/window/rect", json={"width": width, "height": height}))
+
     def screenshot(self, path: Path) -> None:
         path.write_bytes(base64.b64decode(self._value(self.http.get("/screenshot"))))
 
@@ -103,39 +112,34 @@ def _step(b: Browser) -> int | None:
     return int(text) if text.isdigit() else None
 
 
-def test_the_page_shows_live_values_answers_chat_and_switches_controller(browser, ui_mesh, tmp_path):
-    b = browser
-    b.go(ui_mesh.url + "/")
-    first = wait_until(lambda: _step(b), 20)
-    assert first is not None, "the step counter never filled"
-    assert wait_until(lambda: (_step(b) or 0) > first + 3, 20), "the live page does not follow the plant"
-    assert b.text("#conn") == "live"
-    assert "°C (cabinet" in b.text("#hottest")
-    assert wait_until(lambda: b.js("return document.querySelectorAll('#agents tbody tr').length") >= 5, 10)
-    assert wait_until(lambda: b.js("return document.querySelectorAll('#decisions li').length") >= 3, 10)
-    assert b.js("return series.blades.size") >= 5 and b.js("return series.power.get('tower fans').length") > 3
+def _on_screen(b: Browser, css: str) -> bool:
+    """`css` lies wholly inside the viewport as the page is, without scrolling."""
+    return b.js(f"const r = document.querySelector({json.dumps(css)}).getBoundingClientRect(); "
+                "return window.scrollX === 0 && window.scrollY === 0 && r.width > 0 && r.height > 0 && "
+                "r.top >= 0 && r.left >= 0 && r.bottom <= window.innerHeight && r.right <= window.innerWidth;")
 
-    b.type("#chat-input", "which cabinet runs hottest?")
+
+def _answers(b: Browser) -> list[str]:
+    return b.js("return [...document.querySelectorAll('.chat-answer')].map((e) => e.className + '|' + e.textContent)")
+
+
+def _ask(b: Browser, question: str) -> str:
+    """Type `question` into the chat box, send it, and return the answer the page shows."""
+    before = len(_answers(b))
+    b.type("#chat-input", question)
     b.click("#chat-send")
-    assert wait_until(lambda: b.js("return document.querySelectorAll('.chat-answer .answer-text').length") >= 1, 15)
-    answer = b.js("return document.querySelector('.chat-answer .answer-text').textContent")
-    assert "runs hottest" in answer, answer
-    facts = b.js("return document.querySelectorAll('.chat-answer .facts li').length")
-    assert facts >= 3 and "°C" in b.js("return document.querySelector('.chat-answer .facts').textContent")
+    assert wait_until(lambda: len(_answers(b)) > before, 20), f"no answer on the page to {question!r}"
+    kind, text = _answers(b)[before].split("|", 1)
+    assert "error" not in kind and text.strip(), text
+    return text
 
-    b.type("#chat-input", "what if I raise the dp setpoint 2 psi?")
-    b.click("#chat-send")
-    assert wait_until(lambda: b.js("return document.querySelectorAll('.chat-answer .answer-text').length") >= 2, 20)
-    assert "Look-ahead on the live twin" in b.js("return document.querySelectorAll('.chat-answer .answer-text')[1]"
-                                                 ".textContent")  # fmt: skip
-    assert "/api/control/setpoints" in b.text(".command code"), "the what-if offers a command to confirm"
 
-    b.type("#token", ui_mesh.token)
-    b.js("document.getElementById('controller-select').value = 'g36'; "
-         "document.getElementById('mode-select').value = 'auto';")  # fmt: skip
-    b.click("#apply-mode")
-    assert wait_until(lambda: "g36, auto" in b.text("#mode-result"), 10), b.text("#mode-result")
+def _rows(b: Browser, css: str) -> list[list[str]]:
+    return b.js(f"return [...document.querySelectorAll({json.dumps(css)})].map((tr) => [...tr.cells]"
+                ".map((td) => td.textContent))")
 
+
+def _shot(b: Browser, tmp_path: Path) -> None:
     shot = tmp_path / "ui.png"
     b.screenshot(shot)
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000
@@ -143,3 +147,84 @@ def test_the_page_shows_live_values_answers_chat_and_switches_controller(browser
     if target:
         Path(target).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(shot, target)
+
+
+def test_the_page_follows_the_plant_with_the_chat_on_screen(browser, ui_mesh, tmp_path):
+    b = browser
+    b.size(1366, 768)
+    b.go(ui_mesh.url + "/")
+    first = wait_until(lambda: _step(b), 20)
+    assert first is not None, "the step counter never filled"
+    assert wait_until(lambda: (_step(b) or 0) > first + 3, 20), "the live page does not follow the plant"
+    assert b.text("#conn") == "live"
+    for width, height in ((1366, 768), (1920, 1080)):
+        b.size(width, height)
+        assert wait_until(lambda: _on_screen(b, "#chat-input") and _on_screen(b, "#chat-send"), 5), (width, height)
+    assert re.search(r"cabinet \d", _ask(b, "which cabinet runs hottest?"))
+    _ask(b, "what if I raise the dp setpoint 2 psi?")
+    assert wait_until(lambda: "/api/control/" in b.js("return document.querySelector('.command code')?.textContent "
+                                                       "|| ''"), 5), "a what-if offers a command to confirm"
+    assert _on_screen(b, "#chat-input"), "answers scroll inside the chat, the box stays put"
+
+    assert "°C (cabinet" in b.text("#hottest")
+    assert wait_until(lambda: b.js("return document.querySelectorAll('#agents tbody tr').length") >= 5, 10)
+    assert b.js("return series.blades.size") >= 5 and b.js("return series.power.get('tower fans').length") > 3
+    assert float(b.js("return document.getElementById('plot-power').dataset.ymin")) >= 0, "power is never < 0 kW"
+
+    # the live page fills the new "Now" rows and the supply table; then one known state, shown as it comes
+    assert wait_until(lambda: re.fullmatch(r"1\.\d{3}", b.text("#pue")) and len(_rows(b, "#supply tbody tr")) == 5, 5)
+    assert _rows(b, "#supply thead tr") == [["cabinet", "measured", "setpoint", "off (K)", "hottest blade"]]
+    state = httpx.get(ui_mesh.url + "/api/state", timeout=10).json()
+    shown = b.js(f"onState({json.dumps(state)}); const text = (id) => document.getElementById(id).textContent; "
+                 "return [text('pue'), text('approach'), text('wet-bulb'), [...document.querySelectorAll("
+                 "'#supply tbody tr')].map((tr) => [...tr.cells].map((td) => td.textContent))];")
+    pue, approach, wet_bulb, supply = shown
+    assert float(pue) == pytest.approx(state["totals"]["cooling_pue"], abs=6e-4) and 1.0 < float(pue) < 1.5
+    towers = re.fullmatch(r"tower 1: (\d+\.\d) K · tower 2: (\d+\.\d) K", approach)
+    assert towers and [float(v) for v in towers.groups()] == pytest.approx([t["approach_k"] for t in state["towers"]],
+                                                                            abs=0.051)  # fmt: skip
+    assert re.fullmatch(r"\d+\.\d °C", wet_bulb), "the recorded weather needs no label"
+    assert [r[0] for r in supply] == [str(c["cabinet"]) for c in state["cabinets"]]
+    shown_supply = [[float(r[1]), float(r[2])] for r in supply]
+    assert shown_supply == [pytest.approx([c["supply_temp_measured_c"], c["supply_setpoint_c"]], abs=0.051)
+                            for c in state["cabinets"]], "each measured supply beside its setpoint"  # fmt: skip
+    _shot(b, tmp_path)
+    shifted = {**state, "wet_bulb_c": 24.1, "wet_bulb_note": "recorded + 15 K, scenario lcopt"}
+    label = b.js(f"onState({json.dumps(shifted)}); return document.getElementById('wet-bulb').textContent")
+    assert label == "24.1 °C (recorded + 15 K, scenario lcopt)"
+
+
+def test_the_decision_feed_says_what_changed_and_counts_unchanged_steps(browser, ui_mesh):
+    b = browser
+    b.go(ui_mesh.url + "/")
+    assert wait_until(lambda: b.js("return decisionsSeen") >= 3, 20)
+    said = b.js("return [...document.querySelectorAll('#decisions li .change')].map((e) => e.textContent)")
+    words = r"(no change|supply setpoint|dp setpoint|leaving-water|cabinet [1-9]|tower [1-9]|\d+ more)"
+    assert said and all(re.fullmatch(f"{words}.*", t) for t in said), said  # numbered from 1
+
+    # hold the plant: every step applies the same action, so the feed has nothing new to say
+    b.type("#token", ui_mesh.token)
+    b.js("document.getElementById('mode-select').value = 'manual';")
+    b.click("#apply-mode")
+    try:
+        assert wait_until(lambda: "manual" in b.text("#mode-result"), 10), b.text("#mode-result")
+        top = "document.querySelector('#decisions li')"
+        assert wait_until(lambda: b.js(f"return {top}?.dataset.count") not in (None, "1", "2"), 20)
+        rows, seen = b.js("return document.querySelectorAll('#decisions li').length"), b.js("return decisionsSeen")
+        assert wait_until(lambda: b.js("return decisionsSeen") >= seen + 12, 20)
+        assert b.js("return document.querySelectorAll('#decisions li').length") == rows, "a row per unchanged step"
+        tags = b.js(f"return [...{top}.querySelectorAll('.tag')].map((e) => e.textContent)")
+        assert re.fullmatch(r"steps \d+–\d+", tags[0]) and re.fullmatch(r"×\d+", tags[1]), tags
+        assert tags[2].startswith("manual"), tags
+        assert b.js(f"return {top}.querySelector('.change').textContent") == "no change on these steps"
+        assert b.js("const li = [...document.querySelectorAll('#decisions li.unchanged')]; return li.every((e, i) => "
+                    "i === 0 || e.previousElementSibling !== li[i - 1] || e.dataset.key !== li[i - 1].dataset.key)")
+
+        b.js("document.getElementById('controller-select').value = 'g36'; "
+             "document.getElementById('mode-select').value = 'auto';")  # fmt: skip
+        b.click("#apply-mode")
+        assert wait_until(lambda: "g36, auto" in b.text("#mode-result"), 10), b.text("#mode-result")
+    finally:  # the session's mesh goes on running G36 for the tests after this one, whatever happened here
+        with ui_mesh.client() as http:
+            if http.get("/api/config").json()["config"]["mode"] != "auto":
+                http.post("/api/control/mode", json={"controller": "g36", "mode": "auto"}, headers=ui_mesh.auth())

@@ -17,19 +17,22 @@ import time
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent
-from lcmesh.mesh.agents.ui.answers import ChatSources, NotReady
+from lcmesh.mesh.agents.ui.sources import ChatSources, NotReady
 from lcmesh.mesh.agents.ui.app import UiContext, create_app
 from lcmesh.mesh.agents.ui.chat import ChatEngine
 from lcmesh.mesh.agents.ui.config import UiSettings
 from lcmesh.mesh.agents.ui.gateway import MeshGateway
 from lcmesh.mesh.agents.ui.live import EventHub, LiveStore, dumps
 from lcmesh.mesh.agents.ui.phrasing import make_phraser
+from lcmesh.mesh.agents.ui.planner import make_planner
 from lcmesh.mesh.agents.ui.security import is_loopback, resolve_token, weak_token_reason
+from lcmesh.mesh.bus import QueryError
 from lcmesh.mesh.history import HistoryReader
 from lcmesh.mesh.messages import (
     AgentEvent, AgentStats, Alert, AppliedAction, ConfigDoc, Explanation, MeshConfig, MonitorReport, PlantState,
     utc_now,
 )  # fmt: skip
+from lcmesh.mesh.tools import registry
 from lcmesh.twin.system import load_system
 
 log = logging.getLogger("lcmesh.mesh.agents.ui")
@@ -71,12 +74,15 @@ class UiAgent(Agent):
         store = LiveStore(system, hub, keep=ui.decisions_kept, state_hz=ui.sse_state_hz)
         gateway = MeshGateway(self.bus, self.site, ui.bus_timeout_s)
         phraser, note = make_phraser(ui.phraser, adapter=ui.phraser_adapter)
+        planner = make_planner(ui.planner)
         sources = ChatSources(system=system, state=lambda: store.state, history=self.history_reader,
                               config=lambda: self.config_doc, agents=store.agents_view, gateway=gateway,
                               applied=store.latest_applied)  # fmt: skip
         self.ctx = UiContext(settings=s, ui=ui, system=system, store=store, hub=hub, token=token,
                              history=self.history_reader, config_doc=lambda: self.config_doc, gateway=gateway,
-                             chat=ChatEngine(sources, phraser), agent_id=self.agent_id, phraser_note=note)  # fmt: skip
+                             chat=ChatEngine(sources, phraser, planner=planner), agent_id=self.agent_id,
+                             phraser_note=note)  # fmt: skip
+        self._serve_data_tools(sources)
         self._preload_alerts(store)
         self.watch_config(self._on_config)
         self.subscribe(keys.applied_all(self.site), AppliedAction, store.on_applied)
@@ -117,7 +123,21 @@ class UiAgent(Agent):
             return {}
         return {"url": self.url, "live_clients": ctx.hub.clients, "states": ctx.store.counts.get("states", 0),
                 "chat": dict(ctx.chat.intents), "chat_ungrounded": ctx.chat.ungrounded,
-                "phraser": ctx.chat.phraser.name, "phraser_note": ctx.phraser_note}  # fmt: skip
+                "chat_planned_by": dict(ctx.chat.planned_by), "phraser": ctx.chat.phraser.name,
+                "phraser_note": ctx.phraser_note}  # fmt: skip
+
+    def _serve_data_tools(self, sources: ChatSources) -> None:
+        """The operator's data tools on ``tools/{name}``: the same registry the chat plans with, for anyone on the bus."""
+        context = registry.ToolContext(system=sources.system, data=sources)
+        for name in registry.served_tools(data=True):
+
+            def answer(payload: bytes | None, name=name):
+                result = registry.invoke(name, payload or b"{}", context)
+                if not result.ok:
+                    raise QueryError(result.error)
+                return result
+
+            self.serve(keys.tool(self.site, name), answer)
 
     # --- data sources --------------------------------------------------------------------------------
     def history_reader(self) -> HistoryReader:

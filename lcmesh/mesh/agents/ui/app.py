@@ -33,7 +33,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from lcmesh.mesh.agents.ui.answers import NotReady
+from lcmesh.mesh.agents.ui.sources import NotReady
 from lcmesh.mesh.agents.ui.chat import ChatEngine
 from lcmesh.mesh.agents.ui.config import UiSettings
 from lcmesh.mesh.agents.ui.gateway import MeshGateway, MeshRefused, MeshUnavailable

@@ -1,77 +1,277 @@
-"""The grounded chat: classify the question, retrieve facts, write the answer, check its numbers.
+"""The operator assistant: plan tool calls, run them, write the answer from their results, check it, send it.
 
-``ChatEngine.ask(message)`` returns ``{"answer", "facts", "intent", "proposed_command",
-"phrased_by", "grounded", "elapsed_ms"}``. The intent comes from a deterministic classifier
-(``intents.py``); facts from the live state, history, decisions and the toolbox (``answers.py``,
-``actions.py``); the text from a digit-free template over those facts, optionally rephrased by
-the LLM backend (``phrasing.py``). Before it leaves, every number in the answer is checked
-against the facts. A request to change the plant comes back as a proposed command: chat never
-actuates.
+``ChatEngine.ask(message)`` returns ``{"answer", "facts", "intent", "proposed_command", "phrased_by",
+"grounded", "elapsed_ms", "plan", "planned_by", "refused", "problems", "lang"}``, answered in the
+question's language (English, Spanish, German or French: ``language.detect_language``):
+
+1. a planner (the local LLM with its planner adapter, any OpenAI-compatible endpoint, or the regex
+   rules as the counted fallback: ``planner.py``) turns the question into calls of the tool registry
+   the mesh serves on ``tools/*`` (``lcmesh.mesh.tools.registry``);
+2. the tools compute: the data tools here, on the UI's live state and history; the what-if on the
+   live twin, through the Sensor's queryable;
+3. ``writer.py`` writes the answer from the results only, every number a fact;
+4. the semantic guard (``lcmesh.mesh.tools.semantic``) checks every number is bound to the right
+   entity and quantity and every ranking and direction agrees with the results. An answer that
+   fails is not sent as grounded: a rephrasing falls back to the written draft, a draft that fails
+   is a bug and is reported.
+
+A question no tool answers gets an honest "I can't tell that from here" and is never grounded. A
+request to change the plant comes back as a proposed command: chat never actuates.
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections import Counter
-from collections.abc import Callable
 from typing import Any
 
-from lcmesh.mesh.agents.ui import actions, answers
-from lcmesh.mesh.agents.ui.answers import Answer, ChatSources, NotReady
-from lcmesh.mesh.agents.ui.facts import ungrounded_numbers
-from lcmesh.mesh.agents.ui.intents import Intent, classify
+from lcmesh.mesh.agents.ui import writer
+from lcmesh.mesh.agents.ui.sources import ChatSources, NotReady
+from lcmesh.mesh.agents.ui.facts import ChatFact, FactBook, fact, numbers_in, ungrounded_numbers
+from lcmesh.mesh.agents.ui.gateway import MeshRefused, MeshUnavailable
+from lcmesh.mesh.agents.ui.language import detect_language, phrase
 from lcmesh.mesh.agents.ui.phrasing import Phraser, TemplatePhraser
+from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall
+from lcmesh.mesh.tools import registry, semantic
+from lcmesh.mesh.tools.plant_data import PLANT_TOOLS
 
 log = logging.getLogger("lcmesh.mesh.agents.ui")
+MAX_CALLS = 4  # a multi-part question; more is a planner gone astray
+CAN_DO = phrase("en", "can_do")  # every language's wording: ui/language.py
+REFUSAL = writer.refusal("en")
+_QUOTED = re.compile(r"“[^”]*”")
 
-HANDLERS: dict[str, Callable[[Intent, ChatSources], Answer]] = {
-    "state": answers.answer_state, "rank": answers.answer_rank, "compare": answers.answer_compare,
-    "alerts": answers.answer_alerts, "agents": answers.answer_agents, "controller": answers.answer_controller,
-    "help": answers.answer_help, "why": actions.answer_why, "whatif": actions.answer_whatif,
-    "command": actions.answer_command,
-}  # fmt: skip
+
+class ToolRunner:
+    """Runs registry tools: data tools on the UI's sources, plant tools on the Sensor through the bus."""
+
+    def __init__(self, sources: ChatSources, plant: Any = None):
+        self.sources = sources
+        self.context = registry.ToolContext(system=sources.system, data=sources, plant=plant)
+
+    def __call__(self, call: ToolCall) -> registry.ToolResult:
+        if call.tool in PLANT_TOOLS and self.context.plant is None:
+            return self._remote(call)
+        return registry.invoke(call.tool, call.args, self.context)
+
+    def _remote(self, call: ToolCall) -> registry.ToolResult:
+        gateway = self.sources.gateway
+        if gateway is None:
+            return registry.ToolResult(ok=False, tool=call.tool, error="no bus to reach the live twin", not_ready=True)
+        try:
+            return registry.ToolResult(ok=True, tool=call.tool, result=gateway.tool(call.tool, call.args))
+        except MeshRefused as exc:
+            return registry.ToolResult(ok=False, tool=call.tool, error=str(exc))
+        except MeshUnavailable as exc:
+            return registry.ToolResult(ok=False, tool=call.tool, error=str(exc), not_ready=True)
+
+
+def guard_data(facts: list[ChatFact]) -> tuple[list[semantic.Bound], list[semantic.Ranking]]:
+    """The values and rankings an answer may state, from the facts its tool results produced."""
+    values, rankings = [], []
+    for f in facts:
+        if isinstance(f.value, str) or f.quantity == "number":
+            continue
+        signed = float(f.value) if f.ref.get("stat") == "change" else None
+        for shown in numbers_in(f.display)[:1]:
+            values.append(semantic.Bound(shown, f.entity, f.quantity, signed))
+        if f.ref.get("rank") == 1:
+            rankings.append(semantic.Ranking(f.quantity, f.ref["order"], f.entity))
+        if f.ref.get("extreme"):
+            rankings.append(semantic.Ranking(f.quantity, f.ref["extreme"], f.entity))
+    return values, rankings
+
+
+def check_answer(text: str, facts: list[ChatFact]) -> list[semantic.Problem]:
+    """The semantic guard on an answer: quoted text (alerts, explanations) is cited verbatim and skipped."""
+    values, rankings = guard_data(facts)
+    plain = _QUOTED.sub("“”", text)
+    for f in facts:  # a text value (a time, a name, an alert) is cited whole, not read as numbers
+        if isinstance(f.value, str) and f.value:
+            plain = plain.replace(f.value, "“”")
+    problems = semantic.check(plain, values, rankings)
+    return problems + [semantic.Problem("unbound_number", n, "no fact holds this number")
+                       for n in ungrounded_numbers(text, facts) if not problems]  # fmt: skip
+
+
+# --- does the plan cover the question? ------------------------------------------------------------------------
+# Words in a question that name something the answer must address; a plan that covers none of their concepts
+# answers another question, and its answer is not marked grounded (the reply says what may be missing).
+QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.IGNORECASE), frozenset(c)) for p, c in (
+    (r"\bpue\b", {"pue"}),
+    (r"\bapproach|aproximaci[oó]n|ann[aä]herung|\bapproche", {"approach"}),
+    (r"wet[- ]?bulb|bulbo h[uú]medo|feuchtkugel|bulbe humide", {"wet_bulb"}),
+    (r"\bvalves?\b|v[aá]lvula|\bventil|\bvanne", {"valve"}),
+    (r"\bdp\b|differential pressure|presi[oó]n|druck|pression", {"dp", "dp_setpoint"}),
+    (r"\bflows?\b|caudal|durchfluss|d[ée]bit", {"flow"}),
+    (r"\breturn\b|retorno|r[uü]cklauf|\bretour", {"return_temp", "htw_return_temp"}),
+    (r"\balert|\balarm|\bfaults?\b|st[oö]rung|warnung|alerte", {"alerts"}),
+    (r"\bagents?\b|\bservices?\b|agentes?\b|dienste", {"agents"}),
+    (r"controller|\bpolicy\b|\bregler|controlador|contr[oô]leur", {"controller"}),
+    (r"reject|rechaz|abgegeben|\brejet", {"heat_rejected"}),
+    (r"leaving[- ]water|\blw\b|\bbasin\b", {"leaving_water", "lw_setpoint", "lw"}),
+    (r"\b(last|past|previous)\s+(\d+\s*)?(min|mins|minutes?|hours?|h|hrs?|days?)\b|\bago\b|\bhace\b|\bvor\s+\d"
+     r"|\bil y a\b", {"history"}),
+)]  # fmt: skip
+TOOL_COVERS: dict[str, frozenset[str]] = {k: frozenset(v) for k, v in {
+    "energy_balance": {"pue", "it_power", "heat_rejected", "cdu_heat", "cooling_power", "tower_power", "pump_power"},
+    "overview": {"pue", "blade_temp", "in_band", "it_power", "tower_power", "pump_power", "wet_bulb", "controller"},
+    "band_count": {"in_band", "blade_temp"}, "alerts": {"alerts"}, "agents": {"agents"},
+    "controller": {"controller", "history"}, "decision": {"valve", "supply", "dp", "lw", "controller", "history"},
+    "history_stat": {"history"},
+    "whatif_setpoint": {"blade_temp", "in_band", "tower_power", "pump_power", "cooling_power"},
+    "propose_change": {"controller"},
+}.items()}  # fmt: skip
+_SETPOINT_CONCEPTS = {"supply": {"supply", "supply_setpoint", "supply_temp"}, "dp": {"dp", "dp_setpoint"},
+                      "lw": {"lw", "lw_setpoint", "leaving_water"}}  # fmt: skip
+
+
+def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
+    """(concepts, entities) a plan's calls address."""
+    concepts, entities = set(), set()
+    for call in calls:
+        args = call.args
+        concepts |= TOOL_COVERS.get(call.tool, frozenset())
+        if args.get("quantity"):
+            concepts.add(args["quantity"])
+        if args.get("setpoint"):
+            concepts |= _SETPOINT_CONCEPTS.get(args["setpoint"], set())
+        if args.get("action"):
+            concepts |= _SETPOINT_CONCEPTS.get(args["action"], {args["action"]})
+        for key in ("cabinet", "tower", "branch"):
+            if args.get(key) is not None:
+                entities.add(f"{key} {args[key]}")
+        for key in ("cabinets", "towers"):
+            entities |= {f"{key[:-1]} {n}" for n in args.get(key) or ()}
+    return concepts, entities
+
+
+def uncovered(question: str, calls: list[ToolCall]) -> list[str]:
+    """What the question names that the plan does not address: entities ("cabinet 3") and concepts ("pue")."""
+    concepts, entities = _covered(calls)
+    missing = []
+    for m in semantic.ENTITY.finditer(question):
+        name = semantic.canonical_entity(*m.groups())
+        parts = name.split(" of ")
+        if not any(p in entities for p in parts) and not (len(parts) == 2 and parts[1] in entities):
+            missing.append(name)
+    for pattern, wanted in QUESTION_CONCEPTS:
+        if pattern.search(question) and not wanted & concepts:
+            missing.append(sorted(wanted)[0])
+    return missing
 
 
 class ChatEngine:
-    """Answers operator questions from facts; counts intents, latencies and ungrounded answers."""
+    """Answers operator questions through tools; counts plans, fallbacks, refusals, guard failures, latency."""
 
-    def __init__(self, sources: ChatSources, phraser: Phraser | None = None):
+    def __init__(self, sources: ChatSources, phraser: Phraser | None = None, planner: Any = None,
+                 runner: ToolRunner | None = None):  # fmt: skip
         self.sources = sources
         self.phraser = phraser or TemplatePhraser()
-        self.intents: Counter = Counter()
-        self.ungrounded = 0
+        self.planner = planner or RulePlanner()
+        self.runner = runner or ToolRunner(sources)
+        self.intents: Counter = Counter()  # tool calls by name ("refuse" for none)
+        self.planned_by: Counter = Counter()
+        self.ungrounded = 0  # drafts the guard refused: a writer bug
+        self.rejected_phrasings = 0
+        self.uncovered = 0  # answers whose plan missed something the question names (sent, not grounded)
         self.not_ready = 0
         self.latency_s: list[float] = []
 
     def ask(self, message: str) -> dict[str, Any]:
         """The answer to `message`; NotReady (HTTP 503) when the data it needs is not there yet."""
         t0 = time.perf_counter()
-        intent = classify(message)
-        self.intents[intent.kind] += 1
-        try:
-            answer = HANDLERS[intent.kind](intent, self.sources)
-        except NotReady:
-            self.not_ready += 1
-            raise
-        except FileNotFoundError as exc:  # no history file yet
-            self.not_ready += 1
-            raise NotReady(str(exc)) from None
-        phrased = self.phraser.phrase(message, answer.intent, answer.text, answer.facts)
-        bad = ungrounded_numbers(phrased.text, answer.facts)
-        if bad:  # a template bug: say so rather than print an unsupported number
-            self.ungrounded += 1
-            log.error("chat answer to %r cites numbers no fact holds: %s", message, bad)
+        plan = self.planner.plan(message)
+        reply = self.answer(message, plan)
         elapsed = time.perf_counter() - t0
         self.latency_s.append(elapsed)
         del self.latency_s[:-1000]
+        return {**reply, "elapsed_ms": round(elapsed * 1e3, 2)}
+
+    def answer(self, message: str, plan: Plan) -> dict[str, Any]:
+        """Run `plan`'s calls and write, check and phrase the answer (no timing)."""
+        self.planned_by[plan.by.split(":")[0]] += 1
+        calls = plan.calls[:MAX_CALLS]
+        lang = detect_language(message)
+        if not calls:
+            self.intents["refuse"] += 1
+            return self._reply(writer.refusal(lang), [], plan, refused=True, grounded=False, lang=lang)
+        book = FactBook()
+        parts, proposed, failed = [], None, False
+        for k, call in enumerate(calls):
+            self.intents[call.tool] += 1
+            result = self.runner(call)
+            if result.not_ready:
+                self.not_ready += 1
+                raise NotReady(result.error or f"the {call.tool} tool has no data yet")
+            if not result.ok:
+                failed = True
+                parts.append(_tool_error(book, call, result.error or "failed", k, lang))
+                continue
+            parts.append(writer.write(call.tool, result.result, call.args, book, k, lang))
+            if call.tool == "propose_change":
+                proposed = _proposal(result.result) or proposed
+            elif call.tool == "whatif_setpoint" and proposed is None:  # the change it tried, ready to confirm
+                proposed = self._whatif_proposal(call.args)
+        draft = " ".join(parts)
+        facts = book.listed()
+        problems = check_answer(draft, facts)
+        missing = uncovered(message, calls)
+        if missing:  # a true answer to another question is not grounded
+            self.uncovered += 1
+            plan = Plan(plan.calls, plan.by, "; ".join(x for x in (plan.note, "the plan may not answer what the "
+                        f"question names: {', '.join(missing)}") if x), plan.raw)  # fmt: skip
+        if problems:
+            self.ungrounded += 1
+            log.error("chat draft for %r fails the semantic guard: %s", message, problems)
+        phrased = self.phraser.phrase(message, calls[0].tool, draft, facts)
+        text, by, note = phrased.text, phrased.by, phrased.note
+        if text != draft:
+            rephrased_problems = check_answer(text, facts)
+            if rephrased_problems:
+                self.rejected_phrasings += 1
+                text, by, note = draft, "template", f"rephrasing refused: {rephrased_problems[0].detail}"
+        return self._reply(text, facts, plan, proposed=proposed, grounded=not (problems or failed or missing),
+                           phrased_by=by, note=note, problems=problems, lang=lang)  # fmt: skip
+
+    def _whatif_proposal(self, args: dict) -> dict | None:
+        """The proposed command that would apply a what-if's change (None when it is outside the limits)."""
+        keys = ("setpoint", "change", "unit", "cabinet")
+        request = {k: args[k] for k in keys if args.get(k) is not None}
+        result = self.runner(ToolCall("propose_change", request))
+        return _proposal(result.result) if result.ok else None
+
+    def _reply(self, text: str, facts: list[ChatFact], plan: Plan, *, refused: bool = False, grounded: bool,
+               proposed: dict | None = None, phrased_by: str = "template", note: str | None = None,
+               problems: list | None = None, lang: str = "en") -> dict[str, Any]:  # fmt: skip
         return {
-            "answer": phrased.text,
-            "facts": [f.model_dump() for f in answer.facts],
-            "intent": answer.intent,
-            "proposed_command": answer.proposed_command,
-            "phrased_by": phrased.by,
-            "phrasing_note": phrased.note,
-            "grounded": not bad,
-            "elapsed_ms": round(elapsed * 1e3, 2),
+            "answer": text,
+            "facts": [f.model_dump() for f in facts],
+            "intent": plan.calls[0].tool if plan.calls else "refuse",
+            "proposed_command": proposed,
+            "phrased_by": phrased_by,
+            "phrasing_note": note,
+            "grounded": grounded,
+            "plan": [{"tool": c.tool, "args": c.args} for c in plan.calls],
+            "planned_by": plan.by,
+            "plan_note": plan.note,
+            "refused": refused,
+            "problems": [p.__dict__ for p in problems or []],
+            "lang": lang,
         }
+
+
+def _proposal(result: dict) -> dict | None:
+    """The command an operator may confirm, from a propose_change result; None if the change breaks a limit."""
+    if result.get("problem"):
+        return None
+    return {key: result[key] for key in ("method", "path", "body", "summary")}
+
+
+def _tool_error(book: FactBook, call: ToolCall, error: str, index: int, lang: str = "en") -> str:
+    """A tool's refusal, quoted: "there is no cabinet 9: this plant has cabinets 1 to 5"."""
+    name = f"{call.tool}{index}_error"
+    book.add(fact(name, error, "", f"the {call.tool} tool's answer", "tool", quantity="error", tool=call.tool))
+    return book.say(phrase(lang, "tool_error", error="{" + name + "}"))

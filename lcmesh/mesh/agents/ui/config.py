@@ -34,6 +34,10 @@ class UiSettings(BaseSettings):
     chat_rate_per_min: float = Field(30.0, gt=0, le=100_000, description="chat requests per minute and client")
     chat_burst: int = Field(10, ge=1, le=100_000, description="chat requests a client may send at once")
     chat_max_chars: int = Field(500, ge=10, le=10_000)
+    planner: Literal["llm", "openai", "rules"] = Field(
+        "llm", description="who turns a question into tool calls: the local LLM with its planner adapter, the "
+        "OpenAI-compatible endpoint of LCMESH_LLM_* (function calling), or the regex rules (also the fallback)"
+    )
     phraser: Literal["template", "llm"] = Field(
         "template", description="who phrases chat answers: the deterministic template, or the LLM backend if present"
     )

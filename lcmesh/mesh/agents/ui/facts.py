@@ -16,8 +16,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict
 
-Source = Literal["state", "history", "decision", "whatif", "alert", "config", "agents", "question", "system"]
-DECIMALS = {"degC": 1, "K": 1, "kW": 1, "W": 0, "psi": 1, "kg/s": 2, "fraction": 2, "%": 1, "min": 0, "h": 1, "s": 0}
+Source = Literal["state", "history", "decision", "whatif", "alert", "config", "agents", "question", "system", "tool"]
+DECIMALS = {"degC": 1, "K": 1, "kW": 1, "W": 0, "psi": 1, "kg/s": 2, "fraction": 2, "%": 1, "min": 0, "h": 1, "s": 0,
+            "pue": 3}
 SUFFIX = {"degC": " °C", "K": " K", "kW": " kW", "W": " W", "psi": " psi", "kg/s": " kg/s", "%": " %", "min": " min",
           "h": " h", "s": " s"}  # fmt: skip
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
@@ -50,14 +51,17 @@ class ChatFact(BaseModel):
     text: str
     source: Source
     ref: dict[str, Any] = {}
+    entity: str | None = None  # what the value belongs to ("cabinet 3", "tower 1", "plant"), for the semantic check
+    quantity: str | None = None  # which quantity it is (a plant_data.QUANTITIES key or a tool field)
 
 
-def fact(name: str, value: float | int | str, unit: str, text: str, source: Source, **ref: Any) -> ChatFact:
+def fact(name: str, value: float | int | str, unit: str, text: str, source: Source, *, entity: str | None = None,
+         quantity: str | None = None, **ref: Any) -> ChatFact:
     """A fact whose display follows `unit` (magnitudes print without sign when the text says the direction)."""
     if isinstance(value, float) and unit == "" and value.is_integer():
         value = int(value)
     return ChatFact(name=name, value=value, unit=unit, display=format_value(value, unit), text=text, source=source,
-                    ref=ref)  # fmt: skip
+                    ref=ref, entity=entity, quantity=quantity)  # fmt: skip
 
 
 def magnitude(f: ChatFact) -> ChatFact:

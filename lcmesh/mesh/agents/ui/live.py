@@ -79,6 +79,11 @@ class EventHub:
             queue.put_nowait((event, data))
 
 
+def _same_run(previous: AppliedAction | None, applied: AppliedAction) -> AppliedAction | None:
+    """`previous` if it is the decision before `applied` in the same run (what a change is measured from)."""
+    return previous if previous is not None and previous.run_id == applied.run_id else None
+
+
 class LiveStore:
     """The latest plant state, decisions, explanations, alerts, agents and events seen on the bus."""
 
@@ -135,6 +140,7 @@ class LiveStore:
     # --- decisions -----------------------------------------------------------------------------------
     def on_applied(self, applied: AppliedAction) -> None:
         with self._lock:
+            previous = _same_run(self.applied[-1] if self.applied else None, applied)
             self.applied.append(applied)
             self.counts["decisions"] += 1
             self.decisions_by_source[applied.source_controller] += 1
@@ -142,7 +148,7 @@ class LiveStore:
                 self.counts["fallbacks"] += 1
             self.counts["clamps"] += len(applied.clamps)
             explanation = self.explanations.get(applied.decision_id) if applied.decision_id else None
-        self.hub.publish("decision", dumps(decision_view(applied, explanation.text if explanation else None)))
+        self.hub.publish("decision", dumps(decision_view(applied, explanation.text if explanation else None, previous)))
 
     def on_explanation(self, explanation: Explanation) -> None:
         with self._lock:
@@ -154,10 +160,13 @@ class LiveStore:
                                                 "controller": explanation.controller, "text": explanation.text}))  # fmt: skip
 
     def recent_decisions(self, limit: int) -> list[dict]:
+        """The newest `limit` decisions, newest first, each with what it changed from the one before it."""
         with self._lock:
-            items = list(self.applied)[-limit:][::-1]
+            items = list(self.applied)[-limit - 1:]
             texts = {a.decision_id: self.explanations.get(a.decision_id) for a in items if a.decision_id}
-        return [decision_view(a, texts[a.decision_id].text if texts.get(a.decision_id) else None) for a in items]
+        pairs = list(zip([None, *items[:-1]], items))[-limit:][::-1]
+        return [decision_view(a, texts[a.decision_id].text if texts.get(a.decision_id) else None, _same_run(b, a))
+                for b, a in pairs]  # fmt: skip
 
     # --- alerts, monitor, agents, events -----------------------------------------------------------------
     def on_alert(self, alert: Alert) -> None:

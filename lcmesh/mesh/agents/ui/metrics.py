@@ -186,12 +186,19 @@ class UiCollector(Collector):
         yield GaugeMetricFamily(P + "ui_live_clients", "connected live pages (server-sent events)", value=self.hub.clients)
         yield CounterMetricFamily(P + "ui_dropped_events", "live events dropped for slow clients", value=self.hub.dropped)
         if self.chat is not None:
-            intents = CounterMetricFamily(P + "chat_requests", "chat questions by intent", labels=["intent"])
+            intents = CounterMetricFamily(P + "chat_requests", "chat tool calls by tool ('refuse': none)",
+                                          labels=["intent"])  # fmt: skip
             for intent, n in sorted(dict(self.chat.intents).items()):
                 intents.add_metric([intent], n)
             yield intents
-            yield CounterMetricFamily(P + "chat_ungrounded_answers", "answers citing a number no fact holds",
+            planned = CounterMetricFamily(P + "chat_plans", "chat plans by planner (llm, openai, rules)", labels=["by"])
+            for by, n in sorted(dict(self.chat.planned_by).items()):
+                planned.add_metric([by], n)
+            yield planned
+            yield CounterMetricFamily(P + "chat_ungrounded_answers", "written answers the semantic guard refused",
                                       value=self.chat.ungrounded)  # fmt: skip
+            yield CounterMetricFamily(P + "chat_rejected_phrasings", "LLM rephrasings the guard refused (draft sent)",
+                                      value=self.chat.rejected_phrasings)  # fmt: skip
 
 
 def make_registry(collector: UiCollector) -> tuple[CollectorRegistry, Histogram]:

@@ -1,6 +1,6 @@
 """Who writes the chat answer's final text: the deterministic draft itself, or the LLM backend rephrasing it.
 
-The template phraser returns the draft (built from facts by ``answers.py`` / ``actions.py``).
+The template phraser returns the draft (written from tool results by ``writer.py``).
 The LLM phraser (``LCMESH_UI_PHRASER=llm``; the backend is ``lcmesh.llm``'s, configured by
 ``LCMESH_LLM_*``) sends the question, the facts and the draft through
 ``lcmesh/prompts/chat_answer.md`` (the draft also goes as the backend's decoding draft). Its text

@@ -101,7 +101,9 @@ class CabinetView(BaseModel):
     branch_temps_c: list[float]
     branch_power_kw: list[float]
     valve_fractions: list[float]
-    supply_temp_c: float
+    supply_temp_c: float = Field(description="the twin's coolant supply temperature")
+    supply_temp_measured_c: float = Field(description="the supply as the CDU's sensor reads it (what its valve "
+                                          "loop holds at `supply_setpoint_c`; a sensor bias shows here)")
     supply_setpoint_c: float
     return_temp_c: float
     secondary_flow_kg_s: float
@@ -133,8 +135,16 @@ class StateView(BaseModel):
     sent_at: str
     period_s: float
     faults_active: bool
-    wet_bulb_c: float
-    totals: dict[str, float]
+    wet_bulb_c: float = Field(description="the wet bulb the plant runs on, any scenario offset included")
+    scenario: str = Field(description="how the trace drives the plant: frontier, design-day, lcopt (docs/traces.md)")
+    wet_bulb_offset_k: float = Field(description="K added to the trace's wet bulb (the scenario's plus "
+                                     "LCMESH_WET_BULB_OFFSET_K)")
+    wet_bulb_note: str | None = Field(description="where the wet bulb comes from when it is not the recorded one, "
+                                      "e.g. 'recorded + 15 K, scenario lcopt'; null when it is")
+    totals: dict[str, float | None] = Field(
+        description="plant totals in kW, °C and %, and `cooling_pue`: (IT + tower fans + pumps) / IT, null with no "
+        "IT load"
+    )
     cabinets: list[CabinetView]
     towers: list[TowerView]
     controller: dict[str, Any] | None
@@ -194,9 +204,14 @@ class DecisionRow(BaseModel):
     fallback: bool
     fallback_reason: str | None
     rejected_reason: str | None
-    clamps: list[dict[str, Any]]
+    clamps: list[dict[str, Any]] = Field(description="what the guardrails changed: `field`, `index` (counted from "
+                                         "1: [cabinet], [cabinet, branch] or [tower]), `proposed`, `applied` (SI), "
+                                         "`reason`")
     latency_ms: float | None
     action: ActionView
+    changes: list[str] | None = Field(description="what this action changed from the decision before, as the page "
+                                      "shows it ('cabinet 3 branch 2 valve 0.31 → 0.36'); [] nothing visible; "
+                                      "null: no earlier decision known")
     explanation: str | None
 
 
@@ -352,7 +367,8 @@ class ControlAnswer(BaseModel):
     controller: str
     mode: str
     manual_action: dict[str, Any] | None = None
-    clamps_expected: list[dict[str, Any]] = []
+    clamps_expected: list[dict[str, Any]] = Field([], description="the clamps the guardrails will apply, as "
+                                                  "/api/decisions lists them (`index` counted from 1)")
     detail: str = ""
 
 
@@ -361,12 +377,30 @@ class ChatQuestion(_In):
                          "LCMESH_UI_CHAT_MAX_CHARS characters)")  # fmt: skip
 
 
+class ChatToolCall(BaseModel):
+    tool: str = Field(description="a tool of the registry served on tools/* (see docs/ui.md, The assistant)")
+    args: dict[str, Any]
+
+
+class ChatProblem(BaseModel):
+    kind: str = Field(description="unbound_number, wrong_entity, wrong_quantity, wrong_rank or wrong_direction")
+    span: str
+    detail: str
+
+
 class ChatAnswer(BaseModel):
     answer: str
     facts: list[ChatFact]
-    intent: str
+    intent: str = Field(description="the first tool called, or 'refuse' when no tool answers the question")
     proposed_command: dict[str, Any] | None = None
     phrased_by: str
     phrasing_note: str | None = None
-    grounded: bool
+    grounded: bool = Field(description="true only for an answer written from tool results that passed the semantic "
+                           "guard; refusals and tool errors are never grounded")
     elapsed_ms: float
+    plan: list[ChatToolCall] = []
+    planned_by: str = Field("rules", description="llm, openai or rules (the regex fallback)")
+    plan_note: str | None = None
+    refused: bool = False
+    problems: list[ChatProblem] = []
+    lang: str = "en"

@@ -26,7 +26,7 @@ from pydantic import ValidationError
 from lcmesh.mesh.tools.explain_eval import text as tx
 from lcmesh.mesh.tools.explain_eval.claims import Context, check_coverage, check_direction
 from lcmesh.mesh.tools.explain_eval.consistency import check_bounds, check_physics, check_ranking
-from lcmesh.mesh.tools.explain_eval.grounding import ValuePool, check_grounding
+from lcmesh.mesh.tools.explain_eval.grounding import _TOPIC_NAMES, ValuePool, check_grounding
 from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
 from lcmesh.mesh.tools.explain_eval.record import EvalConfig, RawRecord, build_record, validation_message
 from lcmesh.mesh.tools.explain_eval.report import aggregate, render_markdown
@@ -57,12 +57,13 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
     except ValidationError as exc:
         return _invalid(str(data.get("id", fallback_id)), f"{where}{validation_message(exc)}")
     rec = build_record(raw)
+    rec.text = tx.normalize(rec.text)
     pool = ValuePool(rec.pool)
     mentions = tx.branch_mentions(rec.text)
     ctx = Context(rec, cfg, tx.sentences(rec.text), extract_numbers(rec.text), mentions,
                   tx.decide_index_base(mentions, rec.n_branches, rec.index_base), pool)  # fmt: skip
     grounding = check_grounding(rec, ctx.numbers, pool, lambda pos: _clause_text(ctx, pos),
-                                lambda pos: _branch_at(ctx, pos), cfg)  # fmt: skip
+                                lambda pos: _branch_at(ctx, pos), cfg, ctx.base)  # fmt: skip
     flags = [("ungrounded_number", p) for p in grounding.problems]
     dims, coverage_flags = check_coverage(ctx)
     checked, consistent, direction_flags = check_direction(ctx)
@@ -132,7 +133,7 @@ def _clause_text(ctx: Context, pos: int) -> str:
     return ""
 
 
-_FOR_BRANCH = re.compile(r"^\s*(?:\S+\s+)?(?:for|to|on|in|of|at)\s+(?:the\s+)?$", re.I)
+_FOR_BRANCH = re.compile(r"^\s*(?:\S+\s+)?(?:(?:for|to|on|in|of|at)\s+|\(\s*)(?:the\s+)?$", re.I)
 
 
 def _branch_at(ctx: Context, pos: int) -> int | None:
@@ -140,20 +141,31 @@ def _branch_at(ctx: Context, pos: int) -> int | None:
     for s in ctx.sentences:
         if s.start <= pos < s.end:
             end = next((m.unit_end if m.unit_end > 0 else m.end for m in ctx.numbers if m.start == pos), pos)
-            after = [b for b in ctx.branches_in(end, s.end) if _FOR_BRANCH.match(ctx.rec.text[end : b.start])]
+            in_list = ctx.rec.text[max(0, pos - 1) : pos] == "/"  # "0.36/0.32/0.32 (branch 1 opened ...)"
+            after = [b for b in ctx.branches_in(end, s.end) if _FOR_BRANCH.match(ctx.rec.text[end : b.start])
+                     and not (in_list and "(" in ctx.rec.text[end : b.start])]  # fmt: skip
             if after and (after[0].group < 0 or sum(x.group == after[0].group for x in ctx.branches) == 1):
                 return ctx.entity(after[0])
             this = next((m for m in ctx.numbers if m.start == pos), None)
             for b in ctx.branches_in(s.start, s.end):
                 a, z = ctx.span_of(b, s)
                 group = [x for x in ctx.branches if b.group >= 0 and x.group == b.group]
-                near = tx.words_between(ctx.rec.text, b.end, pos) <= 6
+                near = tx.words_between(ctx.rec.text, b.end, pos) <= 12
                 # only the first number of its kind after the mention: "branch 3 gets 0.30, like its 28 %" is
                 # about branch 3, "branches 1 and 3 ... their 15 % and 28 %" lists are not attributed
                 first = this is None or not any(_kind(m) == _kind(this) for m in ctx.numbers_in(b.end, pos))
-                if a <= pos < z and len(group) <= 1 and b.start <= pos and near and first:
+                apart = _ATTRIBUTION_BREAK.search(ctx.rec.text, b.end, pos) if b.end <= pos else None
+                text = ctx.rec.text
+                if text.rfind("(", s.start, b.start) > text.rfind(")", s.start, b.start) and ")" in text[b.end : pos]:
+                    apart = True  # "36 % (branch 1, opened), 32 %": the mention sits in brackets closed before
+                if a <= pos < z and len(group) <= 1 and b.start <= pos and near and first and apart is None:
                     return ctx.entity(b)
     return None
+
+
+# a number is not said of a branch named before a clause break or before another quantity's name
+_ATTRIBUTION_BREAK = re.compile(r";|\||\b(?:while|whereas|but)\b|" + _TOPIC_NAMES.pattern.split("|(?P<other>")[0],
+                                re.IGNORECASE)  # fmt: skip
 
 
 def _kind(m) -> str:

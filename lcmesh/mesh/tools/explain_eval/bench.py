@@ -1,5 +1,6 @@
 """``lcmesh bench explain``: facts and renderer speed, evaluator speed, explanation quality over a twin day,
-and the verdict on the hand-written test set (docs/examples/explain-eval)."""
+the judge's precision and recall on the outside corpus (``corpus/``: the evidence; its test part), and the
+verdict on the hand-written 40-record set (docs/examples/explain-eval: a regression check, in-sample)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,9 @@ from lcmesh.twin.system import load_system
 from lcmesh.twin.traces import FRONTIER_DAY, load_trace, scenario_named
 
 TESTSET = Path(__file__).resolve().parents[4] / "docs" / "examples" / "explain-eval"
+CORPUS = Path(__file__).resolve().parent / "corpus"
+JUDGED_KINDS = ("ungrounded_number", "missing_action_dimension", "wrong_direction", "wrong_ranking", "physics",
+                "out_of_bounds")  # fmt: skip
 TARGETS = {"numeric_grounding": 0.98, "coverage": 1.0, "direction_consistency": 0.95}
 
 
@@ -54,8 +58,74 @@ def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
         "evaluate_s": t2 - t1, "aggregate": agg, "per_level": per_level,
         "targets_met": {k: agg[k] >= v for k, v in TARGETS.items()},
     }  # fmt: skip
+    result["corpus"] = {part: _without_rows(corpus_verdict(part)) for part in ("test", "dev")}
     result["testset"] = testset_verdict(testset_dir)
     return result
+
+
+def _without_rows(verdict: dict) -> dict:
+    return {k: v for k, v in verdict.items() if k != "rows"}
+
+
+def load_corpus(folder: Path = CORPUS) -> tuple[dict[str, dict], list[dict]]:
+    """(records by key, labelled texts) of the outside corpus."""
+    records = {}
+    for line in (folder / "records.jsonl").read_text().splitlines():
+        r = json.loads(line)
+        records[r["record_key"]] = r
+    texts = [json.loads(line) for line in (folder / "corpus.jsonl").read_text().splitlines() if line.strip()]
+    return records, texts
+
+
+def corpus_record(records: dict[str, dict], text: dict) -> dict:
+    """The explain-eval input line of one corpus text: its decision record with the text."""
+    r = records[text["record_key"]]
+    return {"id": text["id"], "observation": r["observation"], "action": r["action"],
+            "previous_action": r["previous_action"], "facts": r["facts"],
+            "explanation": text["explanation"]}  # fmt: skip
+
+
+def corpus_verdict(split: str, folder: Path = CORPUS, cfg=None) -> dict:
+    """Per flag kind precision and recall over one part (``dev`` or ``test``) of the corpus, recall per planted
+    error kind and per style, and the share of correct texts that get any flag."""
+    records, texts = load_corpus(folder)
+    part = [t for t in texts if t["split"] == split]
+    rows = []
+    t0 = time.perf_counter()
+    for t in part:
+        got = sorted({f["kind"] for f in evaluate_record(corpus_record(records, t), cfg)["flags"]})
+        rows.append({"id": t["id"], "style": t["style"], "source": t["source"], "error": t["error"],
+                     "expected": t["expected_flags"], "flagged": got})  # fmt: skip
+    seconds = time.perf_counter() - t0
+    per_flag = {}
+    for kind in JUDGED_KINDS:
+        tp = sum(kind in r["expected"] and kind in r["flagged"] for r in rows)
+        fp = sum(kind not in r["expected"] and kind in r["flagged"] for r in rows)
+        fn = sum(kind in r["expected"] and kind not in r["flagged"] for r in rows)
+        per_flag[kind] = {"expected": tp + fn, "flagged": tp + fp, "tp": tp,
+                          "precision": tp / (tp + fp) if tp + fp else None,
+                          "recall": tp / (tp + fn) if tp + fn else None}  # fmt: skip
+    per_error: dict[str, dict] = {}
+    for r in rows:
+        if r["error"] is not None:
+            e = per_error.setdefault(r["error"], {"texts": 0, "found": 0})
+            e["texts"] += 1
+            e["found"] += all(k in r["flagged"] for k in r["expected"])
+    per_style: dict[str, dict] = {}
+    for r in rows:
+        st = per_style.setdefault(r["style"], {"correct": 0, "correct_flagged": 0, "flawed": 0, "flawed_found": 0})
+        if not r["expected"]:
+            st["correct"] += 1
+            st["correct_flagged"] += bool(r["flagged"])
+        else:
+            st["flawed"] += 1
+            st["flawed_found"] += all(k in r["flagged"] for k in r["expected"])
+    correct = [r for r in rows if not r["expected"]]
+    return {"split": split, "texts": len(rows), "correct_texts": len(correct),
+            "correct_flagged": sum(bool(r["flagged"]) for r in correct),
+            "correct_flagged_share": sum(bool(r["flagged"]) for r in correct) / len(correct) if correct else 0.0,
+            "per_flag": per_flag, "per_error": per_error, "per_style": per_style, "evaluate_s": seconds,
+            "rows": rows}  # fmt: skip
 
 
 def testset_verdict(folder: Path = TESTSET) -> dict:
@@ -139,7 +209,46 @@ def render_markdown_section(r: dict) -> str:
         f"| direction consistency (mean; {agg['direction_claims_checked']:,} claims) | "
         f"{agg['direction_consistency']:.4f} | >= 0.95 |",
         f"| flags over the day | {sum(agg['flag_counts'].values())} | 0 |",
-        f"| hand-written test set: records whose flags equal the expected ones | {ts['matching']} / "
-        f"{ts['records']} | all |",
+        f"| hand-written 40-record set (regression, in-sample): records whose flags equal the expected ones | "
+        f"{ts['matching']} / {ts['records']} | all |",
     ]  # fmt: skip
+    if "corpus" in r:
+        lines += ["", *corpus_markdown(r["corpus"])]
     return "\n".join(lines)
+
+
+def _fig(x: float | None) -> str:
+    return "-" if x is None else f"{x:.3f}"
+
+
+def corpus_markdown(corpus: dict) -> list[str]:
+    """The outside corpus's table: the test part is the evidence, the dev part (tuned on) is shown beside it."""
+    test, dev = corpus["test"], corpus["dev"]
+    lines = [
+        f"Outside corpus (`lcmesh/mesh/tools/explain_eval/corpus/`, docs/explanations.md): the **test** part, "
+        f"{test['texts']} texts ({test['correct_texts']} correct) on decisions the judge was never tuned on, is the "
+        f"evidence; the dev part, {dev['texts']} texts, is what the judge was tuned on (in-sample, shown for "
+        "comparison).",
+        "",
+        "| flag kind | test precision | test recall | test texts with the flaw | dev precision | dev recall |"
+        " target (test recall) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for kind, t in test["per_flag"].items():
+        d = dev["per_flag"][kind]
+        target = ">= 0.95" if t["expected"] else ""
+        lines.append(f"| {kind} | {_fig(t['precision'])} | {_fig(t['recall'])} | {t['expected']} | "
+                     f"{_fig(d['precision'])} | {_fig(d['recall'])} | {target} |")  # fmt: skip
+    lines.append(f"| correct texts with any flag | {test['correct_flagged']} / {test['correct_texts']} = "
+                 f"{test['correct_flagged_share']:.3f} | | | {dev['correct_flagged']} / {dev['correct_texts']} = "
+                 f"{dev['correct_flagged_share']:.3f} | | <= 0.02 |")  # fmt: skip
+    lines += ["", "| planted error (test) | found | | style (test) | correct texts flagged | flawed texts found |",
+              "|---|---|---|---|---|---|"]
+    errors = sorted(test["per_error"].items())
+    styles = sorted(test["per_style"].items())
+    for i in range(max(len(errors), len(styles))):
+        e = f"{errors[i][0]} | {errors[i][1]['found']} / {errors[i][1]['texts']}" if i < len(errors) else " | "
+        st = (f"{styles[i][0]} | {styles[i][1]['correct_flagged']} / {styles[i][1]['correct']} | "
+              f"{styles[i][1]['flawed_found']} / {styles[i][1]['flawed']}") if i < len(styles) else " | | "  # fmt: skip
+        lines.append(f"| {e} | | {st} |")
+    return lines

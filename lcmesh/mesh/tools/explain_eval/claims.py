@@ -115,6 +115,7 @@ def _valves_covered(ctx: Context) -> set[int]:
     valves = ctx.rec.valves
     covered: set[int] = set()
     last: int | None = None  # the one branch the previous sentence was about, for "its valve ..."
+    previous_valves = False  # the previous sentence talked about valves: "Branches 2 and 3 stay at 0.32." goes on
     for s in ctx.sentences:
         has_valve_word = bool(tx.VALVE.search(s.text)) or "VALVE" in s.heading or "VALVE" in s.section
         mentions = ctx.branches_in(s.start, s.end)
@@ -133,8 +134,9 @@ def _valves_covered(ctx: Context) -> set[int]:
             before = [m for m in ctx.numbers_in(s.start, b.start) if tx.words_between(text, m.end, b.start) <= 2]
             cites = any(ctx.matches(m, "fraction", valves[j]) for m in ctx.numbers_in(a, z) + before[-1:])
             talks = tx.VALVE.search(span) and (tx.ANY_DIRECTION.search(span) or tx.EQUAL_SPLIT.search(span))
-            if (cites and (has_valve_word or tx.VALVE.search(span))) or talks:
+            if (cites and (has_valve_word or previous_valves or tx.VALVE.search(span))) or talks:
                 covered.add(j)
+        previous_valves = has_valve_word
         if not has_valve_word:
             continue
         fractions = [m for m in ctx.numbers_in(s.start, s.end) if any(q == "fraction" for q, _, _ in m.interpretations)]

@@ -39,10 +39,15 @@ def check_ranking(ctx: Context) -> list[Flag]:
                 j = ctx.entity(b)
                 best = int(values.argmax() if extreme == "max" else values.argmin())
                 if abs(values[j] - values[best]) > _rank_tol(ctx, what, values):
-                    flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(j)} is not the {w.group().lower()}"
-                                                   f" ({ctx.label(best)} is)"))  # fmt: skip
+                    flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(j)} is not the "
+                                                   f"{_RANK_NAMES[what, extreme]} ({ctx.label(best)} is)"))  # fmt: skip
         flags += _comparatives(ctx, s, mentions, data)
     return flags
+
+
+_RANK_NAMES = {("temp", "max"): "hottest", ("temp", "min"): "coolest", ("load", "max"): "most loaded",
+               ("load", "min"): "least loaded", ("valve", "max"): "branch with the largest valve fraction",
+               ("valve", "min"): "branch with the smallest valve fraction"}  # fmt: skip
 
 
 def _rank_tol(ctx: Context, what: str, values: np.ndarray) -> float:

@@ -92,6 +92,7 @@ def check_grounding(
     clause_at,
     branch_at,
     cfg: EvalConfig,
+    base: int = 1,
 ) -> GroundingResult:
     """Score the measurements; ``clause_at(pos)`` gives the clause text, ``branch_at(pos)`` the branch
     (0-based) whose span holds ``pos`` or None."""
@@ -105,13 +106,17 @@ def check_grounding(
         for q, x, h in m.interpretations:
             hits += pool.direct(q, x, tolerance(q, x, h, cfg))
         if hits:
-            wrong = _misattributed(hits, branch_at(m.start))
-            if wrong is None:
-                res.grounded += 1
+            branch = branch_at(m.start)
+            wrong = _misattributed(hits, branch, pool)
+            topic = _topic_of(rec.text, m)
+            if wrong is not None:
+                actual = f"branch {wrong[1] + base}'s value" if wrong[1] is not None else f"the {_labels(hits)}"
+                res.problems.append(f"{_quote(rec.text, m)} is given for branch {wrong[0] + base} but is {actual}")
+            elif branch is None and topic is not None and _off_topic(hits, topic, pool):
+                res.problems.append(f"{_quote(rec.text, m)} is given as the {topic.replace('_', ' ')} but is the "
+                                    f"{_labels(hits)}")  # fmt: skip
             else:
-                res.problems.append(
-                    f"{_quote(rec.text, m)} is attributed to branch {wrong[0]} but is branch {wrong[1]}'s value"
-                )
+                res.grounded += 1
             continue
         clause = clause_at(m.start)
         if _derived(m, pool, clause, cfg):
@@ -122,17 +127,70 @@ def check_grounding(
     return res
 
 
-def _misattributed(hits: list[PoolEntry], branch: int | None) -> tuple[int, int] | None:
-    """(claimed, actual) 0-based branches when the number only matches other branches' values."""
+def _misattributed(hits: list[PoolEntry], branch: int | None, pool: "ValuePool") -> tuple[int, int | None] | None:
+    """(claimed, actual or None) 0-based branches when a number said of a branch is not that branch's value: another
+    branch's, or a temperature of no branch (a setpoint, a band limit) where the branch's own is known."""
     if branch is None:
         return None
     relevant = [e for e in hits if e.quantity in _BRANCH_QUANTITIES]
-    if not relevant or len(relevant) < len(hits):
+    if not relevant:
         return None
     owners = {e.entity if e.entity is not None else e.alias for e in relevant}
-    if branch in owners or None in owners:
+    if branch in owners:
         return None
-    return branch, min(owners)
+    if None in owners and any(e.quantity != "temp_abs" for e in relevant if e.entity is None and e.alias is None):
+        return None  # a power or fraction of no branch ("57 % of the cabinet's 346 kW on branch 2"): a total
+    known = any(e.entity == branch for q in {e.quantity for e in relevant} for e in pool.entries.get(q, []))
+    if not known:
+        return None
+    others = sorted(o for o in owners if o is not None)
+    return branch, (others[0] if others else None)
+
+
+# what a temperature is said to be: the nearest name before it in its clause (or right after it: "the 18.6 °C wet
+# bulb"); only the setpoints and the wet bulb are checked, the other names stop the search
+_TOPIC_NAMES = re.compile(
+    r"(?P<wet_bulb>wet[\s-]?bulb)"
+    r"|(?P<lw_setpoint>(?:leaving[\s-]+water|LWT|tower)(?:[\s-]+(?:water|leaving-water|temperature))?[\s-]+"
+    r"set[\s-]?points?)"
+    r"|(?P<supply_setpoint>(?:supply|CDU|coolant)(?:[\s-]+(?:water|coolant|temperature|temp|supply))*[\s-]+"
+    r"set[\s-]?points?)"
+    r"|(?P<other>measured|\bmeas\b|deliver\w*|tower\s+water|leaving[\s-]+water|return|supply|coolant|branch\w*"
+    r"|blade\w*|group|approach|above|below|hottest|coolest|warmest|spread|previous\w*"
+    r"|limit|band|edge|ceiling|floor|threshold|bound|nears?)",
+    re.IGNORECASE,
+)
+
+
+_CLAUSE_END = re.compile(r"[.!?](?=\s)|[;|\n]")
+
+
+def _topic_of(text: str, m: NumberMention) -> str | None:
+    end = m.unit_end if m.unit_end > 0 else m.end
+    after = _TOPIC_NAMES.match(text[end : end + 60].lstrip())  # "the 17.7 °C leaving-water setpoint"
+    if after:
+        return after.lastgroup if after.lastgroup != "other" else None
+    breaks = [b.end() for b in _CLAUSE_END.finditer(text, 0, m.start)]
+    before = text[breaks[-1] if breaks else 0 : m.start]
+    names = list(_TOPIC_NAMES.finditer(before))
+    if not names:
+        return None
+    last = names[-1]
+    if len(re.findall(r"[\w°%./-]+", before[last.end() :])) > 8:
+        return None
+    return last.lastgroup if last.lastgroup != "other" else None
+
+
+def _off_topic(hits: list[PoolEntry], topic: str, pool: "ValuePool") -> bool:
+    """True when an absolute temperature named as ``topic`` matches only other readings' values."""
+    absolute = [e for e in hits if e.quantity == "temp_abs"]
+    if not absolute or any(e.topic == topic for e in absolute):
+        return False
+    return any(e.topic == topic for e in pool.entries.get("temp_abs", []))
+
+
+def _labels(hits: list[PoolEntry]) -> str:
+    return " / ".join(dict.fromkeys(e.label for e in hits[:3]))
 
 
 def _derived(m: NumberMention, pool: ValuePool, clause: str, cfg: EvalConfig) -> bool:

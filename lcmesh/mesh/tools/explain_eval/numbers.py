@@ -15,8 +15,10 @@ valve fraction of 0.42 and "36.4 °C" matches 309.55 K.
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass, field
+
 
 K0 = 273.15
 PSI_TO_PA = 6894.757
@@ -30,8 +32,9 @@ _SPACE = r"[\s\u00a0\u202f]*"
 
 
 def _unit(pattern: str) -> re.Pattern:
-    """A unit right after a number; ``~`` in ``pattern`` stands for optional (also non-breaking) space."""
-    return re.compile(_SPACE + "(?:" + pattern.replace("~", _SPACE) + ")")
+    """A unit right after a number, after optional (also non-breaking) space or a hyphen ("30.9-C", LLMs write
+    it); ``~`` in ``pattern`` stands for optional space."""
+    return re.compile("(?:" + _SPACE + "|-)" + "(?:" + pattern.replace("~", _SPACE) + ")")
 
 
 # (regex, normalized unit), tried in order right after the number
@@ -42,10 +45,12 @@ _UNITS: list[tuple[re.Pattern, str]] = [
     (_unit(r"K\b(?![-'’])|[Kk]elvins?\b"), "K"),
     (_unit(r"(?:kWh|MWh)\b"), "energy"),
     (_unit(r"MW\b|[Mm]egawatts?\b"), "MW"),
-    (_unit(r"kW\b|[Kk]ilowatts?\b"), "kW"),
+    (_unit(r"kW\b|KW\b|[Kk]ilowatts?\b"), "kW"),
     (_unit(r"W\b|[Ww]atts?\b"), "W"),
     (_unit(r"kg~/~s\b|kg~s(?:\^?-1|⁻¹)|kg per s(?:ec(?:ond)?)?\b"), "kg/s"),
     (_unit(r"[Ll]~/~s\b|lit(?:re|er)s? per second\b"), "L/s"),
+    (_unit(r"[Ll]~/~min\b|lpm\b|lit(?:re|er)s? per minute\b"), "L/min"),
+    (_unit(r"gpm\b|GPM\b|gal(?:lons?)?~/~min\b|gallons? per minute\b"), "gpm"),
     (_unit(r"psid?\b|PSI\b"), "psi"),
     (_unit(r"kPa\b"), "kPa"),
     (_unit(r"MPa\b"), "MPa"),
@@ -177,9 +182,26 @@ def _inherit_range_units(mentions: list[NumberMention], text: str) -> None:
             a.unit = b.unit
 
 
-_SCALE = {"W": 1.0, "kW": 1e3, "MW": 1e6, "Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "psi": PSI_TO_PA, "bar": 1e5}
-_QUANTITY = {"W": "power", "kW": "power", "MW": "power", "Pa": "pressure", "kPa": "pressure", "MPa": "pressure",
-             "psi": "pressure", "bar": "pressure"}  # fmt: skip
+RHO_WATER = 997.0  # kg/m^3 at the loop's ~25 degC: volumetric flows (L/s, gpm) are read as mass flows
+# each unit the text may use -> (quantity, pint unit, SI unit of the pool)
+_PINT = {"W": ("power", "W", "W"), "kW": ("power", "kW", "W"), "MW": ("power", "MW", "W"),
+         "Pa": ("pressure", "Pa", "Pa"), "kPa": ("pressure", "kPa", "Pa"), "MPa": ("pressure", "MPa", "Pa"),
+         "psi": ("pressure", "psi", "Pa"), "bar": ("pressure", "bar", "Pa"),
+         "kg/s": ("flow", "kg/s", "kg/s"), "L/s": ("flow", "L/s", "m^3/s"), "L/min": ("flow", "L/min", "m^3/s"),
+         "gpm": ("flow", "gallon/minute", "m^3/s")}  # fmt: skip
+_QUANTITY = {u: q for u, (q, _, _) in _PINT.items()}
+
+
+@functools.cache
+def _factors() -> tuple[dict[str, float], float, float]:
+    """(SI factor per unit, degF->K slope, degF->K offset), from pint once (its registry takes ~0.5 s to build)."""
+    import pint
+
+    ureg = pint.UnitRegistry()
+    scale = {u: float(ureg.Quantity(1.0, src).to(si).magnitude) * (RHO_WATER if si == "m^3/s" else 1.0)
+             for u, (_, src, si) in _PINT.items()}  # fmt: skip
+    f0, f1 = (float(ureg.Quantity(x, "degF").to("K").magnitude) for x in (0.0, 1.0))
+    return scale, f1 - f0, f0
 
 
 def interpretations(m: NumberMention) -> list[tuple[str, float, float]]:
@@ -188,15 +210,13 @@ def interpretations(m: NumberMention) -> list[tuple[str, float, float]]:
     if u == "degC":
         return [("temp_abs", v + K0, h), ("temp_delta", abs(v), h)]
     if u == "degF":
-        return [("temp_abs", (v - 32.0) / 1.8 + K0, h / 1.8), ("temp_delta", abs(v) / 1.8, h / 1.8)]
+        _, slope, offset = _factors()
+        return [("temp_abs", v * slope + offset, h * slope), ("temp_delta", abs(v) * slope, h * slope)]
     if u == "K":
         return [("temp_abs", v, h), ("temp_delta", abs(v), h)]
-    if u in _SCALE:
-        return [(_QUANTITY[u], abs(v) * _SCALE[u], h * _SCALE[u])]
-    if u == "kg/s":
-        return [("flow", abs(v), h)]
-    if u == "L/s":
-        return [("flow", abs(v) * 0.997, h)]
+    if u in _QUANTITY:
+        f = _factors()[0][u]
+        return [(_QUANTITY[u], abs(v) * f, h * f)]
     if u == "%":
         return [("fraction", abs(v) / 100.0, h / 100.0), ("percent", abs(v), h)]
     if u == "pp":

@@ -84,6 +84,7 @@ class PoolEntry:
     label: str
     entity: int | None = None  # 0-based branch the value belongs to
     alias: int | None = None  # a branch whose value this entry repeats (e.g. the hottest branch's temperature)
+    topic: str | None = None  # the setpoint or reading a text may name it by (TOPICS)
 
 
 @dataclass
@@ -296,6 +297,10 @@ def _pool(rec: Record, raw: RawRecord) -> list[PoolEntry]:
     for dim, change in rec.changes.items():
         q = {"supply": "temp_delta", "tower": "temp_delta", "dp": "pressure", "flow": "flow"}[dim]
         pool.append(PoolEntry(q, abs(change), f"{dim} change"))
+    prev_valves = _array((raw.previous_action or {}).get("valve_fractions", (raw.previous_action or {}).get("valves")))
+    if prev_valves is not None and prev_valves.size == n:  # "closed from 0.25 to 0.20" is said of the branch
+        pool += [PoolEntry("fraction", float(v), f"previous valve fraction of branch {j}", j)
+                 for j, v in enumerate(prev_valves)]  # fmt: skip
     if rec.valve_changes is not None:
         pool += [PoolEntry("fraction", abs(float(d)), f"valve change of branch {j}", j)
                  for j, d in enumerate(rec.valve_changes)]  # fmt: skip
@@ -313,7 +318,15 @@ def _pool(rec: Record, raw: RawRecord) -> list[PoolEntry]:
         if q == "unitless" and 0.0 <= value <= 1.0:
             pool.append(PoolEntry("fraction", value, f"fact {f.get('name')}"))
     _mark_aliases(pool)
+    for e in pool:
+        e.topic = next((name for name, pattern in TOPICS if pattern.search(e.label)), None)
     return pool
+
+
+# pool labels (record keys, fact names) -> the topic a text names them by; checked by grounding.py
+TOPICS = [("wet_bulb", re.compile(r"wet_bulb")),
+          ("lw_setpoint", re.compile(r"lw_setpoint|leaving-water setpoint")),
+          ("supply_setpoint", re.compile(r"supply_temp_setpoint|supply_setpoint(?!_change|_direction)"))]  # fmt: skip
 
 
 _PER_BRANCH_KEYS = {"blade_temp_k", "branch_temp_k", "blade_temp_c", "branch_temp_c", "blade_power_w", "branch_power_w",

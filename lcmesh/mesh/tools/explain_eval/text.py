@@ -39,13 +39,83 @@ class BranchMention:
     group: int = -1  # mentions of one list ("branches 1 and 3") share a group
 
 
+# --- normalization: tables, key-value lines and log shorthand to plain sentences -----------------
+
+_TABLE_RULE = re.compile(r"^:?-{2,}:?$")
+_KV_LINE = re.compile(r"^(?P<lead>\s*(?:[-*•]\s+)?)(?P<key>[A-Za-z][\w '’/-]*?)\s*[:=]\s*(?P<val>[^()\n]+?)\s*"
+                      r"\((?P<dir>(?:raised|lowered|held|increased|decreased|unchanged|opened|closed)[^()]*)\)"
+                      r"\s*\.?$", I)
+_SHORTHAND: list[tuple[re.Pattern, str]] = [
+    (re.compile(r"(?<=[A-Za-z0-9])(?<!\b[TQ])_(?=[A-Za-z0-9])"), " "),  # supply_setpoint, branch_1_valve; not T_cdu
+    (re.compile(r"\s*\((?:=|hold)\)", I), " (held)"),
+    (re.compile(r"\s*\((?:↑|up)\)", I), " (raised)"),
+    (re.compile(r"\s*\((?:↓|dn|down)\)", I), " (lowered)"),
+    (re.compile(r"↑"), "raised"),
+    (re.compile(r"↓"), "lowered"),
+    (re.compile(r"\bt?sup\b(?!\.)", I), "supply"),
+    (re.compile(r"\blwt?\b", I), "leaving-water"),
+    (re.compile(r"\bwb\b", I), "wet bulb"),
+    (re.compile(r"\bmeas\b\.?", I), "measured"),
+    (re.compile(r"\bsp\b", I), "setpoint"),
+    (re.compile(r"\bcab\s*(?=\d)", I), "cabinet "),
+    (re.compile(r"\bb(\d+)\s*=\s*"), r"branch \1 valve "),
+    (re.compile(r"\bb(\d+)\b"), r"branch \1"),
+    (re.compile(r"\b(setpoint|valve)\s+(?:up)\b", I), r"\1 raised"),
+    (re.compile(r"\b(setpoint|valve)\s+(?:dn|down)\b", I), r"\1 lowered"),
+    (re.compile(r"\b(setpoint|valve)\s+(?:hold)\b", I), r"\1 held"),
+    (re.compile(r"\b(hottest|coolest|warmest|coldest|most[ -]loaded|least[ -]loaded|most[ -]opened|widest)"
+                r"\s+branch\s*[:=]\s*(\d+)\b", I), r"\1 branch: branch \2"),
+    (re.compile(r"\s+\|\s+|\s{2,}(?=\S)"), "; "),  # log fields
+    (re.compile(r"\)\s+(?=branch\s+\d)"), "); "),
+]
+
+
+def normalize(text: str) -> str:
+    """Plain sentences from the shapes other systems write: markdown table rows become "key: value (change)"
+    lines, key-value lines with a change in brackets become "key raised at value.", log shorthand is spelled
+    out (``supply_sp`` -> supply setpoint, ``b2=`` -> branch 2 valve, arrows -> raised / lowered). Prose
+    without these shapes is returned unchanged."""
+    out, header = [], None
+    for line in text.splitlines():
+        s = line.strip()
+        if len(s) > 1 and s.startswith("|") and s.endswith("|"):
+            cells = [c.strip() for c in s.strip("|").split("|")]
+            if all(_TABLE_RULE.match(c) for c in cells if c):
+                continue
+            if header is None:
+                header = cells
+                continue
+            line = _row(cells)
+        else:
+            header = None
+        if not s or heading_of(line) is not None:
+            out.append(line)
+            continue
+        for pattern, repl in _SHORTHAND:
+            line = pattern.sub(repl, line)
+        m = _KV_LINE.match(line)
+        if m:
+            line = f"{m.group('lead')}{m.group('key')} {m.group('dir')} at {m.group('val')}."
+        out.append(line)
+    return "\n".join(out)
+
+
+def _row(cells: list[str]) -> str:
+    """A table row as "first cell: other cells (last cell)" when the last cell is a change word."""
+    cells = [c for c in cells if c]
+    if len(cells) >= 3:
+        return f"{cells[0]}: {', '.join(cells[1:-1])} ({cells[-1]})."
+    return ": ".join(cells) + "."
+
+
 # --- sections and sentences -------------------------------------------------------------------
 
 _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
 _SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9\"'(\[*•-])")
 _CLAUSE_SPLIT = re.compile(
     r";|:(?!\d)|\s[—–]\s|\s-\s|,\s+and\s+"
-    r"|,?\s+(?=(?:but|while|whereas|although|though|because|since|if|unless|when|whenever|so that|which|otherwise)\b)",
+    r"|,?\s+(?=(?:but|while|whereas|although|though|because|since|if|unless|when|whenever|so that|which|otherwise)\b)"
+    r"|,\s+(?=(?:and\s+)?(?:branch|blade[\s-]group|group)\s*\d)",
     I,
 )
 _CONDITIONAL_START = re.compile(r"^\W*(?:if|unless|when|whenever|should|in case|otherwise)\b", I)
@@ -171,9 +241,11 @@ TOWER = re.compile(r"cooling[\s-]+towers?|\btowers?\b|\bCTs?\b|leaving[\s-]+wate
 TOWER_SETPOINT = re.compile(r"leaving[\s-]+water|\bLWT\b|tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point|\bCT\b|towers?", I)
 VALVE = _words(
     "valves?", "fractions?", "openings?", "split", r"allocat\w*", r"distribut\w*", r"share of (?:the )?flow",
-    r"of (?:the )?(?:\w+ )?flow", "flow share", r"open\w*", r"clos\w*", r"throttl\w*",
+    r"of (?:the )?(?:\w+ )?flow", "flow share", r"open\w*", r"clos\w*", r"throttl\w*", r"tilt\w*", r"emphasi[sz]\w*",
+    r"favou?r\w*",
 )
-EQUAL_SPLIT = _words(r"equal(?:ly)?", "evenly", "even split", r"uniform\w*", "same (?:fraction|opening|share)")
+EQUAL_SPLIT = _words(r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
+                     "same (?:fraction|opening|share)")
 PRONOUN = _words("it", "its")
 EACH = _words("each", "every", "all")
 
@@ -184,18 +256,21 @@ _DIRECTION_WORDS: list[tuple[str, str, tuple[str, ...]]] = [
     ("up", "after", ("rais(?:e|es|ing)", "increas(?:e|es|ing)", "boost(?:s|ing)?", "lift(?:s|ing)?", "widen(?:s|ing)?",
                      r"open(?:s|ing)?\s+(?:up|further|wider|more)", r"nudg(?:e|es|ing)\s+up", r"step(?:s|ping)?\s+up")),
     ("up", "both", ("raised", "increased", "boosted", "lifted", "widened", r"opened\s+(?:up|further|wider|more)",
-                    r"stepped\s+up", r"bumped\s+up")),
-    ("up", "before", ("ris(?:e|es|ing)", "rose", r"goes\s+up", r"went\s+up", r"moves?\s+up", r"up\s+by",
+                    r"stepped\s+up", r"bumped(?:\s+up)?", r"nudged\s+up", r"pushed\s+up",
+                    r"(?!(?:held|kept|heated|warmed|picked|backed|set|left)\b)[a-z]+ed\s+up")),
+    ("up", "before", ("ris(?:e|es|ing)", "rose", r"goes\s+up", r"went\s+up", r"moves?\s+up", r"up\s+by", r"up\s+from",
                       r"higher\s+" + _BEFORE_NOW)),
     ("down", "after", (r"lower(?:s|ing)?(?=\s+(?:the|its|their|it|this|that)\b)", "decreas(?:e|es|ing)",
                        "reduc(?:e|es|ing)", "cut(?:s|ting)?", r"step(?:s|ping)?\s+down")),
     ("down", "both", ("lowered", "decreased", "reduced", "closed", "throttled", "narrowed", r"stepped\s+down",
-                      r"cut\s+back", "clos(?:e|es|ing)", "throttl(?:e|es|ing)", "narrow(?:s|ing)?")),
+                      r"cut\s+back", "clos(?:e|es|ing)", "throttl(?:e|es|ing)", "narrow(?:s|ing)?", "trimmed", "eased",
+                      "cut", r"backed\s+off", r"pulled\s+down", r"nudged\s+down",
+                      r"(?!(?:cooled|calmed|settled|held|kept|set)\b)[a-z]+ed\s+(?:down|back)")),
     ("down", "before", ("drops?", "dropped", "falls?", "fell", r"goes\s+down", r"went\s+down", r"moves?\s+down",
-                        r"down\s+by", r"lower\s+" + _BEFORE_NOW)),
+                        r"down\s+by", r"down\s+from", r"lower\s+" + _BEFORE_NOW)),
     ("hold", "after", ("hold(?:s|ing)?", "keep(?:s|ing)?", "maintain(?:s|ing)?", r"leaves?(?!\s+water)")),
     ("hold", "both", ("held", "kept", "maintained", "unchanged", r"left\s+(?:at|unchanged|alone)", "fixed",
-                      r"no\s+change")),
+                      r"no\s+change", "parked")),
     ("hold", "before", ("steady", "constant", "stays?", "stayed", "remains?", "remained", r"(?:is|was)\s+not\s+changed",
                         r"did\s+not\s+change")),
 ]  # fmt: skip
@@ -251,7 +326,11 @@ SUPERLATIVES: list[tuple[str, str, re.Pattern]] = [
                            r"most\s+thermally\s+stressed")),
     ("temp", "min", _words("coolest", "coldest", r"lowest\s+(?:blade\s+|branch\s+)?temperature")),
     ("valve", "max", _words("(?:largest|biggest|highest|widest)" + _VALVE_NOUN, r"most\s+(?:open(?:ed)?|flow)",
-                            r"open(?:s|ed)?\s+(?:\w+\s+){0,3}the\s+most", "widest")),
+                            r"open(?:s|ed)?\s+(?:\w+\s+){0,3}the\s+most", "widest",
+                            # indirect: "the split tilts toward branch 3", "the allocation emphasizes branch 3"
+                            r"tilt(?:s|ed|ing)?\s+(?:\w+\s+)?toward(?:s)?(?![^;]*\b(?:from|away)\b)",
+                            r"emphasi[sz](?:e|es|ed|ing)(?![^;]*\b(?:from|away)\b)",
+                            r"favou?r(?:s|ed|ing)(?![^;]*\b(?:from|away)\b)")),
     ("valve", "min", _words("(?:smallest|lowest|narrowest)" + _VALVE_NOUN, r"least\s+(?:open(?:ed)?|flow)",
                             r"most\s+closed")),
     ("load", "max", _words(r"most\s+(?:heavily\s+)?loaded", r"most\s+(?:of\s+the\s+)?(?:load|power|heat|work)",

@@ -18,12 +18,12 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from lcmesh.mesh.agents.ui.answers import NotReady
+from lcmesh.mesh.agents.ui.sources import NotReady
 from lcmesh.mesh.agents.ui.schemas import (
     PSI_MAX, TEMP_C_MAX, ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest, errors,
 )  # fmt: skip
 from lcmesh.mesh.agents.ui.security import token_matches
-from lcmesh.mesh.agents.ui.views import c, psi
+from lcmesh.mesh.agents.ui.views import c, clamp_view, psi
 from lcmesh.mesh.messages import ActionModel, ConfigDoc
 from lcmesh.mesh.tools.guardrails import apply_guardrails
 from lcmesh.twin.plant import PlantAction
@@ -157,7 +157,7 @@ def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) 
     clamps = []
     if limits is not None:
         preview = apply_guardrails(candidate, base, state.wet_bulb_k, limits, system)
-        clamps = [cl.model_dump() for cl in preview.clamps]
+        clamps = [clamp_view(cl.model_dump()) for cl in preview.clamps]
     changes = {"mode": "manual", "manual_action": ActionModel.from_action(candidate).model_dump()}
     doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "manual setpoints from the API")
     detail = "manual setpoints set" + (f"; the guardrails will clamp {len(clamps)} value(s)" if clamps else "")

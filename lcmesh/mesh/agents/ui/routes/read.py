@@ -12,11 +12,11 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from lcmesh.mesh.agents.ui.answers import NotReady
+from lcmesh.mesh.agents.ui.sources import NotReady
 from lcmesh.mesh.agents.ui.schemas import (
     AgentsAnswer, AlertsAnswer, CabinetView, DecisionsAnswer, Health, HistoryAnswer, StateView, TowerView, errors,
 )  # fmt: skip
-from lcmesh.mesh.agents.ui.views import c, kw, psi
+from lcmesh.mesh.agents.ui.views import action_changes, action_view, c, clamp_view, kw
 from lcmesh.mesh.history import STATE_FIELDS
 from lcmesh.mesh.messages import ActionModel, ConfigDoc
 
@@ -233,28 +233,29 @@ def agents(request: Request) -> dict:
             "fallback_steps_last_minute": report.fallback_steps_last_minute if report else None}  # fmt: skip
 
 
-def _decision_row(row: dict) -> dict:
-    action = ActionModel.model_validate(row["action"])
-    row = dict(row)
-    row["action"] = {
-        "supply_temp_setpoint_c": [c(v) for v in action.supply_temp_setpoint_k],
-        "dp_setpoint_psi": [psi(v) for v in action.dp_setpoint_pa],
-        "valve_fractions": [[round(v, 3) for v in r] for r in action.valve_fractions],
-        "lw_setpoint_c": [c(v) for v in action.lw_setpoint_k],
-    }
-    return row
+def _decision_rows(rows: list[dict], limit: int) -> list[dict]:
+    """History rows (newest first) in operator units, each with what it changed from the row after it (the one
+    before in time; null for the oldest when no earlier row was read) and its clamps counted from 1."""
+    actions = [action_view(ActionModel.model_validate(row["action"])) for row in rows]
+    out = []
+    for k, row in enumerate(rows[:limit]):
+        changes = action_changes(actions[k + 1], actions[k]) if k + 1 < len(rows) else None
+        clamps = [clamp_view(cl) for cl in row["clamps"]]
+        out.append({**row, "action": actions[k], "changes": changes, "clamps": clamps})
+    return out
 
 
 @router.get("/api/decisions", response_model=DecisionsAnswer, tags=["read"], responses=errors(422))
 def decisions(request: Request, limit: Annotated[int, Query(ge=1, le=1000)] = 50, since_step: Step = None) -> dict:
-    """Applied actions newest first: source controller and version, clamps, fallback, explanation."""
+    """Applied actions newest first: source controller and version, what each changed from the one before, clamps
+    (`index` counted from 1), fallback, explanation."""
     ctx = _ctx(request)
     try:
         reader = ctx.history()
     except NotReady:
         rows = ctx.store.recent_decisions(limit)
         return {"source": "memory", "decisions": [r for r in rows if since_step is None or r["step"] >= since_step]}
-    return {"source": "history", "decisions": [_decision_row(r) for r in reader.decisions(limit, since_step)]}
+    return {"source": "history", "decisions": _decision_rows(reader.decisions(limit + 1, since_step), limit)}
 
 
 @router.get("/api/alerts", response_model=AlertsAnswer, tags=["read"], responses=errors(422))

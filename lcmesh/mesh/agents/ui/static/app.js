@@ -1,5 +1,6 @@
 // lc-mesh operator console: live plots (hand-written canvas), agents, decisions, alerts, chat, controller switch.
 // Data: GET /api/history for backfill, then server-sent events from /api/events. No external libraries.
+// Cabinets, branches, towers and cells are numbered from 1, as the API sends them.
 "use strict";
 
 const MAX_POINTS = 600;
@@ -7,6 +8,7 @@ const COLORS = ["#58a6ff", "#f78166", "#3fb950", "#d2a8ff", "#e3b341", "#79c0ff"
 const series = { blades: new Map(), power: new Map(), setpoints: new Map() };
 let system = null;
 let lastStep = null;
+let decisionsSeen = 0;  // decision events received (the feed holds fewer rows: unchanged steps share one)
 
 const $ = (id) => document.getElementById(id);
 const fmt = (v, d = 1) => (v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(d));
@@ -27,6 +29,8 @@ function push(group, name, t, v) {
 }
 
 // --- plotting: one function, lines against plant time (hours), optional horizontal band -------------------
+// opts.bounds = [low, high] (null: open) keeps the y axis inside what the quantity can be: power >= 0 kW,
+// fractions in 0..1. The axis drawn is left on the canvas (data-ymin, data-ymax) for tests.
 function plot(canvas, group, opts = {}) {
   const dpr = window.devicePixelRatio || 1;
   const w = canvas.clientWidth, h = canvas.height / (canvas._dpr || 1);
@@ -45,6 +49,8 @@ function plot(canvas, group, opts = {}) {
   if (x1 === x0) x1 = x0 + 1e-3;
   if (y1 - y0 < 1e-6) { y0 -= 1; y1 += 1; }
   const pad = (y1 - y0) * 0.06; y0 -= pad; y1 += pad;
+  [y0, y1] = withinBounds(y0, y1, opts.bounds);
+  canvas.dataset.ymin = y0; canvas.dataset.ymax = y1;
   const X = (x) => L + (x - x0) / (x1 - x0) * (w - L - R);
   const Y = (y) => T + (1 - (y - y0) / (y1 - y0)) * (h - T - B);
   if (opts.band) {
@@ -76,9 +82,17 @@ function plot(canvas, group, opts = {}) {
   });
 }
 
+// [y0, y1] clipped to bounds = [low, high] (either null), still a span of at least 1 unit
+function withinBounds(y0, y1, bounds) {
+  const [low, high] = bounds || [null, null];
+  if (low !== null && y0 < low) { y0 = low; y1 = Math.max(y1, low + 1); }
+  if (high !== null && y1 > high) { y1 = high; y0 = Math.min(y0, high - 1); }
+  return [y0, y1];
+}
+
 function redraw() {
   plot($("plot-blades"), "blades", { band: [20, 40] });
-  plot($("plot-power"), "power");
+  plot($("plot-power"), "power", { bounds: [0, null] });
   plot($("plot-setpoints"), "setpoints");
 }
 
@@ -101,10 +115,36 @@ function onState(s) {
   $("it-power").textContent = fmt(s.totals.it_power_kw) + " kW";
   $("fan-power").textContent = fmt(s.totals.ct_fan_power_kw) + " kW";
   $("pump-power").textContent = fmt(s.totals.pump_power_kw) + " kW";
-  $("wet-bulb").textContent = fmt(s.wet_bulb_c) + " °C";
+  $("pue").textContent = fmt(s.totals.cooling_pue, 3);
+  $("approach").textContent = s.towers.map((tw) => `tower ${tw.tower}: ${fmt(tw.approach_k)} K`).join(" · ");
+  renderWetBulb(s);
   if (s.controller) $("acting").textContent = s.controller.source + (s.controller.fallback ? " (fallback)" : "");
+  renderSupply(s);
   renderValves(s);
   lastStep = s.step;
+}
+
+// The wet bulb the plant runs on; when a scenario shifts or replaces the recorded one, the label says so.
+function renderWetBulb(s) {
+  const cell = $("wet-bulb");
+  cell.textContent = `${fmt(s.wet_bulb_c)} °C` + (s.wet_bulb_note ? ` (${s.wet_bulb_note})` : "");
+  cell.classList.toggle("shifted", Boolean(s.wet_bulb_note));
+  cell.title = s.wet_bulb_note ? "not the recorded weather: the scenario's wet bulb, which the plant runs on" : "";
+}
+
+// Each CDU's measured supply (its sensor, which its valve loop follows) next to the setpoint in force.
+function renderSupply(s) {
+  const body = $("supply").querySelector("tbody");
+  body.replaceChildren();
+  s.cabinets.forEach((c) => {
+    const off = c.supply_temp_measured_c - c.supply_setpoint_c;
+    const tr = el("tr");
+    tr.append(el("td", {}, `${c.cabinet}`), el("td", { class: "num measured" }, fmt(c.supply_temp_measured_c)),
+      el("td", { class: "num setpoint" }, fmt(c.supply_setpoint_c)),
+      el("td", { class: Math.abs(off) > 0.5 ? "num off" : "num" }, (off > 0 ? "+" : "") + fmt(off, 2)),
+      el("td", { class: "num" }, fmt(c.blade_temp_max_c)));
+    body.append(tr);
+  });
 }
 
 function renderValves(s) {
@@ -143,16 +183,33 @@ function renderAgents(rows) {
 
 const explanations = new Map();
 
-function decisionItem(d) {
-  const li = el("li");
-  li.dataset.decision = d.decision_id || "";
+// A decision that moved nothing the page shows (`changes` is [], not null: null means no decision before it known)
+const unchanged = (d) => Array.isArray(d.changes) && d.changes.length === 0;
+// Decisions alike but for their step: same source, fallback and clamps (what a collapsed row stands for)
+const decisionKey = (d) => JSON.stringify([d.source_controller, d.source_version, d.fallback, d.fallback_reason,
+  (d.clamps || []).map((c) => [c.field, c.index])]);
+
+// One row: the step (or the steps it stands for, with their count), what changed, source, clamps, explanation.
+function decisionItem(d, count = 1, firstStep = d.step) {
+  const li = el("li", { class: unchanged(d) ? "unchanged" : "changed" });
+  Object.assign(li.dataset, { decision: d.decision_id || "", key: decisionKey(d), count, first: firstStep });
   const head = el("div");
-  head.append(el("span", { class: "tag" }, `step ${d.step}`), el("span", { class: "tag" }, `${d.source_controller} v${d.source_version}`));
+  head.append(el("span", { class: "tag" }, count > 1 ? `steps ${firstStep}–${d.step}` : `step ${d.step}`));
+  if (count > 1) head.append(el("span", { class: "tag count" }, `×${count}`));
+  head.append(el("span", { class: "tag" }, `${d.source_controller} v${d.source_version}`));
   if (d.fallback) head.append(el("span", { class: "tag fallback" }, "fallback"));
-  const clamps = Array.isArray(d.clamps) ? d.clamps.length : d.n_clamps || 0;
-  if (clamps) head.append(el("span", { class: "tag clamp" }, `${clamps} clamp(s)`));
+  const clamps = d.clamps || [];
+  if (clamps.length) {
+    const tag = el("span", { class: "tag clamp" }, `${clamps.length} clamp(s)`);
+    tag.title = clamps.map((c) => `${c.field} [${c.index.join(", ")}]: ${c.reason}`).join("\n");
+    head.append(tag);
+  }
   if (d.fallback_reason) head.append(el("span", { class: "muted" }, d.fallback_reason));
   li.append(head);
+  if (d.changes) {
+    const what = d.changes.length ? d.changes.join(", ") : count > 1 ? "no change on these steps" : "no change";
+    li.append(el("div", { class: d.changes.length ? "change" : "change muted" }, what));
+  }
   const text = d.explanation || explanations.get(d.decision_id);
   if (text) {
     const det = el("details");
@@ -162,10 +219,16 @@ function decisionItem(d) {
   return li;
 }
 
-function addDecision(d, atTop = true) {
+// Newest on top; an unchanged step like the unchanged row on top joins that row (its count and step range)
+// instead of adding an identical row every control period.
+function addDecision(d) {
   const list = $("decisions");
-  const li = decisionItem(d);
-  atTop ? list.prepend(li) : list.append(li);
+  const top = list.firstElementChild;
+  if (unchanged(d) && top && top.classList.contains("unchanged") && top.dataset.key === decisionKey(d)) {
+    top.replaceWith(decisionItem(d, Number(top.dataset.count) + 1, Number(top.dataset.first)));
+    return;
+  }
+  list.prepend(decisionItem(d));
   while (list.children.length > 60) list.lastChild.remove();
 }
 
@@ -188,11 +251,15 @@ function renderAlerts() {
   if (!active.length) list.append(el("li", { class: "muted" }, "none active"));
   active.reverse().forEach((a) => {
     const li = el("li");
-    li.append(el("span", { class: `tag ${a.severity}` }, a.severity), el("b", {}, `${a.kind} `), el("span", {}, `${a.location || ""} ${a.message}`));
+    li.append(el("span", { class: `tag ${a.severity}` }, a.severity), el("b", {}, `${a.kind} `),
+      el("span", {}, `${place(a.location)} ${a.message}`));
     if (a.prescription) li.append(el("div", { class: "muted" }, a.prescription));
     list.append(li);
   });
 }
+
+// An alert location as words: "cabinet_3" -> "cabinet 3", "tower_1/cell_2" -> "tower 1, cell 2" (numbered from 1)
+const place = (location) => (location || "").replaceAll("/", ", ").replaceAll("_", " ");
 
 function onConfig(doc) {
   if (!doc) return;
@@ -213,14 +280,14 @@ function connect() {
     onState(h.state);
     renderAgents(h.agents);
     $("decisions").replaceChildren();
-    h.decisions.forEach((d) => addDecision(d, false));
+    [...h.decisions].reverse().forEach(addDecision);  // oldest first, so alike unchanged steps collapse
     h.alerts.forEach((a) => alerts.set(a.alert_id, a));
     renderAlerts();
     onConfig(h.config);
     redraw();
   });
   on("state", (s) => { onState(s); redraw(); });
-  on("decision", (d) => addDecision(d));
+  on("decision", (d) => { decisionsSeen += 1; addDecision(d); });
   on("explanation", addExplanation);
   on("alert", (a) => { alerts.set(a.alert_id, a); renderAlerts(); });
   on("agents", renderAgents);
@@ -271,7 +338,8 @@ function showAnswer(d) {
   box.append(el("div", { class: "answer-text" }, d.answer));
   if (d.facts && d.facts.length) {
     const det = el("details");
-    det.append(el("summary", { class: "muted" }, `${d.facts.length} fact(s) · ${d.intent} · ${d.phrased_by} · ${fmt(d.elapsed_ms, 0)} ms`));
+    const about = [`${d.facts.length} fact(s)`, d.intent, d.phrased_by, `${fmt(d.elapsed_ms, 0)} ms`];
+    det.append(el("summary", { class: "muted" }, about.filter(Boolean).join(" · ")));
     const ul = el("ul", { class: "facts" });
     d.facts.forEach((f) => ul.append(el("li", {}, `${f.name} = ${f.display} (${f.text}; ${f.source})`)));
     det.append(ul);

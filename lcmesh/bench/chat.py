@@ -1,0 +1,280 @@
+"""``lcmesh bench chat``: the operator assistant scored on held-out questions against a recorded plant.
+
+The questions (``lcmesh/bench/data/chat_questions.jsonl``) were written by hand, apart from the
+planner's training generator, each with its expected tool calls; ``dev`` is for tuning, ``test``
+is never used for it. They are asked against a recorded site (``chat_site.py``: a real twin run
+with its history, decisions, alerts and configuration changes; a real plant restored at its last
+step for what-ifs). The reference answer of a question is what its expected calls return on that
+site; an answer is correct when it states the reference's key values (and entities), or refuses
+when the reference is a refusal.
+
+Reported per planner (the local LLM, and the regex rules alone): tool-call accuracy (the plan
+equals the expected calls), answers correct against state, refusals correct, wrong answers
+marked grounded, rule fallbacks, latency p50 / p99.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lcmesh.mesh.agents.ui.facts import format_value, numbers_in
+from lcmesh.mesh.tools import registry
+
+QUESTIONS = "chat_questions.jsonl"
+
+
+@dataclass(frozen=True)
+class Question:
+    id: str
+    split: str
+    question: str
+    lang: str
+    tags: tuple[str, ...]
+    calls: tuple[tuple[str, str], ...]  # (tool, canonical args JSON)
+    refuse: bool
+
+
+def canonical(tool: str, args: dict) -> str:
+    """A call's arguments with defaults filled in by its request model, as sorted JSON (for comparing plans)."""
+    spec = registry.TOOLS.get(tool)
+    if spec is None:
+        return json.dumps(args, sort_keys=True)
+    try:
+        return json.dumps(spec.request_model.model_validate(args).model_dump(mode="json"), sort_keys=True)
+    except ValueError:
+        return json.dumps(args, sort_keys=True)
+
+
+def load_questions(split: str | None = None) -> list[Question]:
+    """The question set (one split, or all)."""
+    text = resources.files("lcmesh.bench.data").joinpath(QUESTIONS).read_text(encoding="utf-8")
+    out = []
+    for line in text.splitlines():
+        if not line.strip():
+            continue
+        row = json.loads(line)
+        if split is not None and row["split"] != split:
+            continue
+        calls = tuple((c["tool"], canonical(c["tool"], c["args"])) for c in row["calls"])
+        out.append(Question(row["id"], row["split"], row["question"], row["lang"], tuple(row["tags"]), calls,
+                            bool(row["refuse"])))  # fmt: skip
+    return out
+
+
+# --- the reference answer: key values of the expected calls' results ------------------------------------------------
+def _shown(value: float, unit: str) -> str:
+    return numbers_in(format_value(value, unit))[0]
+
+
+def key_values(tool: str, args: dict, result: dict, question: str = "") -> list[str]:
+    """What a correct answer to this call must state: number strings as displayed, and names."""
+    unit = result.get("unit", "")
+    if tool == "plant_state":
+        values = [_shown(v["value"], unit) for v in result["values"]]
+        return values if len(values) <= 15 else [_shown(result["plant"], unit)]
+    if tool == "overview":
+        return [_shown(result["hottest"]["value"], "degC"), _shown(result["in_band_pct"], "%")]
+    if tool == "history_stat":
+        stat = result["stat"]
+        return [_shown(abs(result[stat]) if stat == "change" else result[stat], "K" if stat == "change" and
+                       unit == "degC" else unit)]  # fmt: skip
+    if tool == "rank":
+        first = result["ranked"][0]
+        return [first["entity"], _shown(first["value"], unit)]
+    if tool == "compare":
+        return [_shown(v["value"], unit) for v in result["values"]]
+    if tool == "band_count":
+        return [str(result["inside"]), str(result["total"] - result["inside"])] if result["total"] else []
+    if tool == "energy_balance":  # one tool for three questions: the PUE, the heat balance, the cooling power
+        if "pue" in question.lower() and result.get("pue") is not None:
+            return [_shown(result["pue"], "pue")]
+        if re.search(r"reject|rechaz|abgegeben|rejet|balance|bilan|bilanz", question, re.IGNORECASE):
+            return [_shown(result["it_power_kw"], "kW"), _shown(result["heat_rejected_kw"], "kW")]
+        return [_shown(result["cooling_power_kw"], "kW")]
+    if tool == "alerts":
+        return [str(result["count"])] + [a["kind"] for a in result["alerts"][:3]]
+    if tool == "decision":
+        return [str(result["step"])] if result["found"] else []
+    if tool == "controller":
+        return [x for x in (result.get("configured"), result.get("since")) if x]
+    if tool == "agents":
+        return [str(result["alive"]), str(result["known"])]
+    if tool == "propose_change":
+        if result.get("proposed") is not None:
+            return [_shown(result["proposed"], result["unit"])]
+        return [str(v) for v in result["body"].values()]
+    if tool == "whatif_setpoint":
+        return [_shown(result["predicted"]["hottest_blade_c"], "degC")]
+    return []
+
+
+def states(answer: str, keys: Iterable[str]) -> list[str]:
+    """The keys `answer` does not state (numbers as whole numbers, names as words)."""
+    numbers = set(numbers_in(answer))
+    low = answer.lower()
+    missing = []
+    for key in keys:
+        if key.replace(".", "", 1).isdigit():
+            if key not in numbers:
+                missing.append(key)
+        elif key.lower() not in low:
+            missing.append(key)
+    return missing
+
+
+@dataclass
+class Reference:
+    refuse: bool
+    keys: list[str]
+    errors: list[str]  # expected calls the tools refuse (no cabinet 9 ...): the answer must say so
+
+
+def reference(q: Question, run: Callable[[str, dict], registry.ToolResult]) -> Reference:
+    keys, errors = [], []
+    for tool, args_json in q.calls:
+        args = json.loads(args_json)
+        res = run(tool, args)
+        if res.ok:
+            keys += key_values(tool, args, res.result, q.question)
+        else:
+            errors.append(res.error or "")
+    return Reference(q.refuse, keys, errors)
+
+
+def judge(answer: dict, ref: Reference) -> bool:
+    """Whether `answer` is right against the reference computed from the same state."""
+    if ref.refuse:
+        return bool(answer.get("refused"))
+    if answer.get("refused"):
+        return False
+    text = answer["answer"]
+    if ref.errors and not ref.keys:
+        return all(e in text for e in ref.errors)
+    return not states(text, ref.keys) and all(e in text for e in ref.errors)
+
+
+# --- running a planner over a split -----------------------------------------------------------------------------
+@dataclass
+class Row:
+    id: str
+    tags: tuple[str, ...]
+    plan_ok: bool
+    correct: bool
+    grounded: bool
+    refused: bool
+    expected_refusal: bool
+    planned_by: str
+    seconds: float
+    answer: str
+    missing: list[str]
+
+
+def run_split(questions: list[Question], engine: Any, run_tool: Callable, *, clock: Callable[[], float] =
+              time.perf_counter, progress: Callable[[int], None] | None = None) -> list[Row]:  # fmt: skip
+    from lcmesh.mesh.agents.ui.sources import NotReady
+
+    rows = []
+    for k, q in enumerate(questions):
+        ref = reference(q, run_tool)
+        t0 = clock()
+        try:
+            answer = engine.ask(q.question)
+        except NotReady as exc:
+            answer = {"answer": f"not ready: {exc}", "grounded": False, "refused": False, "plan": [],
+                      "planned_by": "?"}  # fmt: skip
+        seconds = clock() - t0
+        plan = Counter((c["tool"], canonical(c["tool"], c["args"])) for c in answer.get("plan", []))
+        rows.append(Row(q.id, q.tags, plan == Counter(q.calls), judge(answer, ref), bool(answer["grounded"]),
+                        bool(answer.get("refused")), q.refuse, str(answer.get("planned_by", "?")).split(":")[0],
+                        seconds, answer["answer"], states(answer["answer"], ref.keys)))  # fmt: skip
+        if progress:
+            progress(k + 1)
+    return rows
+
+
+def summarize(rows: list[Row]) -> dict[str, Any]:
+    n = len(rows)
+    refusals = [r for r in rows if r.expected_refusal]
+    seconds = np.asarray([r.seconds for r in rows]) if rows else np.zeros(1)
+    by_tag: dict[str, list[Row]] = {}
+    for r in rows:
+        for t in r.tags:
+            by_tag.setdefault(t, []).append(r)
+    return {
+        "questions": n,
+        "plan_accuracy": sum(r.plan_ok for r in rows) / n if n else None,
+        "correct": sum(r.correct for r in rows) / n if n else None,
+        "refusals": len(refusals),
+        "refusals_correct": sum(r.correct for r in refusals) / len(refusals) if refusals else None,
+        "false_refusals": sum(r.refused and not r.expected_refusal for r in rows),
+        "wrong_but_grounded": sum(r.grounded and not r.correct for r in rows),
+        "rule_fallbacks": sum(r.planned_by == "rules" for r in rows),
+        "latency_p50_s": float(np.percentile(seconds, 50)),
+        "latency_p99_s": float(np.percentile(seconds, 99)),
+        "by_tag": {t: round(sum(r.correct for r in rs) / len(rs), 3) for t, rs in sorted(by_tag.items())},
+        "wrong": [{"id": r.id, "answer": r.answer[:300], "missing": r.missing} for r in rows if not r.correct][:60],
+    }
+
+
+def markdown(report: dict[str, Any]) -> str:
+    """The chat section of BENCHMARKS.md."""
+    lines = ["Held-out operator questions (`lcmesh/bench/data/chat_questions.jsonl`, written by hand apart from "
+             "the planner's training generator), asked against a recorded site "
+             f"({report['site']}). Reference answers are what the expected tool calls return on that site.", "",
+             "| planner | split | questions | tool calls right | answers right | refusals right | wrong but "
+             "grounded | rule fallbacks | p50 s | p99 s |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for planner, splits in report["planners"].items():
+        for split, s in splits.items():
+            lines.append(f"| {planner} | {split} | {s['questions']} | {s['plan_accuracy']:.1%} | {s['correct']:.1%} | "
+                         f"{s['refusals_correct'] if s['refusals_correct'] is None else format(s['refusals_correct'], '.0%')} "
+                         f"| {s['wrong_but_grounded']} | {s['rule_fallbacks']} | {s['latency_p50_s']:.2f} | "
+                         f"{s['latency_p99_s']:.2f} |")  # fmt: skip
+    lines += ["", f"Machine: {report.get('machine', '')}. Command: `{report['command']}`."]
+    return "\n".join(lines)
+
+
+def site_runner(site_path: Path) -> tuple[Any, Callable[[str, dict], registry.ToolResult]]:
+    """(sources, tool runner) on a recorded site: data tools on its history, what-ifs on its restored plant."""
+    from lcmesh.bench.chat_site import open_site, site_plant
+    from lcmesh.mesh.agents.ui.chat import ToolCall, ToolRunner
+
+    data = open_site(site_path)
+    runner = ToolRunner(data, plant=site_plant(site_path))
+
+    def run(tool: str, args: dict) -> registry.ToolResult:
+        return runner(ToolCall(tool, args))
+
+    run.runner = runner
+    return data, run
+
+
+def bench_engine(sources: Any, planner: Any, run_tool: Callable) -> Any:
+    """A chat engine on the site's sources whose what-ifs run on the site's restored plant."""
+    from lcmesh.mesh.agents.ui.chat import ChatEngine, ToolRunner
+
+    engine = ChatEngine(sources, planner=planner)
+    engine.runner = getattr(run_tool, "runner", None) or ToolRunner(sources)
+    return engine
+
+
+class OraclePlanner:
+    """The expected calls themselves: the ceiling the writer and guard reach with a perfect planner."""
+
+    def __init__(self, questions: Iterable[Question]):
+        from lcmesh.mesh.agents.ui.chat import Plan, ToolCall
+
+        self._plans = {q.question: Plan([ToolCall(t, json.loads(a)) for t, a in q.calls], "oracle")
+                       for q in questions}  # fmt: skip
+
+    def plan(self, question: str):
+        return self._plans[question]

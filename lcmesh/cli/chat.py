@@ -1,0 +1,52 @@
+"""``lcmesh bench chat``: the operator assistant on the held-out questions (lcmesh/bench/chat.py)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from lcmesh.cli.common import JsonOpt, bench_app, console, fail, progress_bar, write_bench
+
+
+@bench_app.command("chat")
+def bench_chat(
+    json_out: JsonOpt = None,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+    split: Annotated[str, typer.Option(help="test (the evidence), dev (for tuning) or all")] = "test",
+    planners: Annotated[str, typer.Option(help="comma list of llm, rules, openai")] = "llm,rules",
+    site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
+) -> None:
+    """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
+    from lcmesh.bench import chat
+    from lcmesh.bench.chat_site import ensure_site
+    from lcmesh.bench.machine import machine_info
+    from lcmesh.llm.model_cache import models_dir
+    from lcmesh.mesh.agents.ui.planner import make_planner
+
+    if split not in ("test", "dev", "all"):
+        fail(f"--split must be test, dev or all, not {split!r}")
+    splits = ["dev", "test"] if split == "all" else [split]
+    with console.status("recording (or reusing) the bench site"):
+        site = ensure_site(models_dir().parent / "chat-sites", minutes=site_minutes)
+    sources, run_tool = chat.site_runner(site)
+    report = {"site": f"{sources.manifest.system}, {sources.manifest.controller}, {site_minutes:g} min, "
+                      f"{sources.manifest.scenario}",
+              "command": "lcmesh bench chat " + " ".join(sys.argv[3:]), "machine": machine_info(), "planners": {}}
+    for name in [p.strip() for p in planners.split(",") if p.strip()]:
+        planner = make_planner(name)
+        engine = chat.bench_engine(sources, planner, run_tool)
+        report["planners"][name] = {}
+        for part in splits:
+            questions = chat.load_questions(part)
+            with progress_bar() as progress:
+                task = progress.add_task(f"{name} on {part}", total=len(questions))
+                rows = chat.run_split(questions, engine, run_tool,
+                                      progress=lambda k: progress.update(task, completed=k))  # fmt: skip
+            summary = chat.summarize(rows)
+            report["planners"][name][part] = summary
+            console.print(f"{name} {part}: plans {summary['plan_accuracy']:.1%}, answers {summary['correct']:.1%}, "
+                          f"wrong-but-grounded {summary['wrong_but_grounded']}, p99 {summary['latency_p99_s']:.2f} s")
+    write_bench(json_out, markdown, "chat", report, render=chat.markdown)

@@ -1,0 +1,467 @@
+"""The chat's planner: an operator question becomes a plan of operator-tool calls (``[]``: none answers it).
+
+Three planners share one output, a ``Plan`` of validated ``ToolCall``s:
+
+- ``LlmPlanner``: the local SmolLM2-135M-Instruct with the planner adapter
+  (``lcmesh/artifacts/llm-planner``, trained by ``lcmesh distill planner``), greedy, prompted with
+  ``lcmesh/prompts/chat_plan.md``; it writes a compact JSON list ``[{"tool": .., "args": {..}}]``.
+- ``OpenAiPlanner``: any OpenAI-compatible endpoint with function calling (vLLM, Ollama,
+  llama.cpp): the tools go out as ``tools=[{"type": "function", ...}]`` and ``tool_calls`` come back.
+- ``RulePlanner``: the regular-expression classifier (``intents.classify``) mapped to calls.
+
+Every call an LLM writes is validated against its request model (``PLANNER_TOOLS``, the same
+pydantic models the tools serve); an answer that is not JSON, names an unknown tool, has bad
+arguments, or does not arrive in time makes the LLM planners fall back to ``RulePlanner``, and they
+say so in the plan (``by="rules"``, ``note="llm output invalid: ..."``) and count it
+(``fallbacks``, ``fallback_reasons``). A plan proposes at most; nothing here acts on the plant.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from string import Template
+from typing import Any, Literal, Protocol
+
+from pydantic import BaseModel, ValidationError
+
+from lcmesh.llm.budget import Clock
+from lcmesh.llm.io_format import load_template
+from lcmesh.mesh.agents.ui.intents import Intent, classify
+from lcmesh.mesh.tools.plant_data import (
+    AgentsRequest, AlertsRequest, BandRequest, CompareRequest, ControllerRequest, DecisionRequest, EnergyRequest,
+    HistoryRequest, OverviewRequest, ProposeRequest, RankRequest, StateRequest, WhatIfSetpointRequest,
+)  # fmt: skip
+from lcmesh.twin.system import PSI_TO_PA
+
+PLANNER_TOOLS: dict[str, type[BaseModel]] = {
+    "plant_state": StateRequest, "overview": OverviewRequest, "history_stat": HistoryRequest, "rank": RankRequest,
+    "compare": CompareRequest, "band_count": BandRequest, "energy_balance": EnergyRequest, "alerts": AlertsRequest,
+    "decision": DecisionRequest, "controller": ControllerRequest, "agents": AgentsRequest,
+    "propose_change": ProposeRequest, "whatif_setpoint": WhatIfSetpointRequest,
+}  # fmt: skip
+PLANNER_ADAPTER = Path(__file__).resolve().parents[3] / "artifacts" / "llm-planner"
+MAX_CALLS = 4  # a question asks a few things at most; more is a runaway answer
+PLAN_STOP = ("}]", "[]")  # a plan's JSON list ends with one of these (no argument is an empty list)
+MAX_NEW_TOKENS = 96  # two calls with arguments take about 60
+TIME_BUDGET_S = 1.5  # the plan's share of the 3 s answer; then the rules plan
+
+
+@dataclass(frozen=True)
+class ToolCall:
+    """One tool call: a name from ``PLANNER_TOOLS`` and arguments its request model accepts."""
+
+    tool: str
+    args: dict[str, Any] = field(default_factory=dict)
+
+    def request(self) -> BaseModel:
+        """The validated request (raises ``PlanError``)."""
+        return validate_call(self.tool, self.args)
+
+
+@dataclass
+class Plan:
+    """The calls that answer a question, who planned them, and why a fallback happened (``note``)."""
+
+    calls: list[ToolCall]
+    by: str  # "llm" | "openai" | "rules"
+    note: str | None = None
+    raw: str | None = None  # the LLM's own output, when there was one
+    seconds: float = 0.0
+
+
+class Planner(Protocol):
+    def plan(self, question: str) -> Plan: ...
+
+
+class PlanError(ValueError):
+    """An LLM plan that cannot be used: ``reason`` is a short kind (not_json, schema, unknown_tool, args)."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason, self.detail = reason, detail
+
+
+# --- validation and the JSON form -------------------------------------------------------------------------
+def validate_call(tool: str, args: Any) -> BaseModel:
+    """The request model instance for ``tool(args)``; PlanError names the tool and the bad field."""
+    model = PLANNER_TOOLS.get(tool) if isinstance(tool, str) else None
+    if model is None:
+        import difflib
+
+        close = difflib.get_close_matches(str(tool), PLANNER_TOOLS, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise PlanError("unknown_tool", f"no tool {tool!r}{hint}")
+    if not isinstance(args, dict):
+        raise PlanError("args", f"{tool}: `args` must be an object, got {type(args).__name__}")
+    try:
+        return model.model_validate(args)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "args"
+        raise PlanError("args", f"{tool}.{where}: {first['msg']}") from None
+
+
+def validate_plan(calls: list[dict] | list[ToolCall]) -> list[BaseModel]:
+    """Every call's validated request, in order (``{"tool", "args"}`` dicts or ToolCalls)."""
+    out = []
+    for c in calls:
+        tool, args = (c.tool, c.args) if isinstance(c, ToolCall) else (c.get("tool"), c.get("args", {}))
+        out.append(validate_call(tool, args))
+    return out
+
+
+def parse_plan(text: str) -> list[ToolCall]:
+    """A plan from an LLM's text: exactly one JSON list of ``{"tool", "args"}`` objects, each valid."""
+    text = text.strip()
+    if not text:
+        raise PlanError("empty", "no output")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise PlanError("not_json", f"{exc.msg} at character {exc.pos} of {text[:80]!r}") from None
+    if not isinstance(data, list):
+        raise PlanError("schema", f"a JSON list of calls was expected, got {type(data).__name__}")
+    if len(data) > MAX_CALLS:
+        raise PlanError("schema", f"at most {MAX_CALLS} calls, got {len(data)}")
+    calls = []
+    for i, item in enumerate(data):
+        if not isinstance(item, dict) or set(item) - {"tool", "args"} or "tool" not in item:
+            raise PlanError("schema", f"call {i + 1} must be {{\"tool\": .., \"args\": {{..}}}}, got {item!r}"[:160])
+        call = ToolCall(item["tool"], item.get("args") or {})
+        call.request()
+        calls.append(call)
+    return calls
+
+
+def plan_text(calls: list[dict] | list[ToolCall]) -> str:
+    """The compact JSON a planner writes: ``[{"tool":"rank","args":{}}]``."""
+    items = [{"tool": c.tool, "args": c.args} if isinstance(c, ToolCall) else {"tool": c["tool"],
+                                                                             "args": c.get("args", {})}
+             for c in calls]  # fmt: skip
+    return json.dumps(items, separators=(",", ":"), ensure_ascii=False)
+
+
+def same_plan(a: list[ToolCall], b: list[ToolCall]) -> bool:
+    """Whether two plans make the same calls in the same order (arguments compared after validation)."""
+    if [c.tool for c in a] != [c.tool for c in b]:
+        return False
+    try:
+        return all(x.request() == y.request() for x, y in zip(a, b))
+    except PlanError:
+        return False
+
+
+def plan_messages(question: str) -> list[dict[str, str]]:
+    """The chat messages the local planner reads (``chat_plan.md``)."""
+    system, user = load_template("chat_plan")
+    return [{"role": "system", "content": system},
+            {"role": "user", "content": Template(user).safe_substitute(question=" ".join(question.split()))}]
+
+
+# --- the rules ----------------------------------------------------------------------------------------------
+# the classifier's quantity names that differ from the tools'
+_QUANTITY = {"it_cooling": "cdu_heat"}
+_PER = {"blade_temp": "branch", "blade_temp_mean": "branch", "flow": "branch", "valve": "branch", "it_power": "branch",
+        "leaving_water": "tower", "lw_setpoint": "tower", "approach": "tower", "tower_power": "tower",
+        "fan_speed": "tower"}  # fmt: skip
+_PLANT_WIDE = {"pump_power", "cooling_power", "heat_rejected", "wet_bulb", "in_band", "pue", "htw_supply_temp",
+               "htw_return_temp"}  # fmt: skip
+_SETPOINT = {"supply_setpoint": "supply", "supply_temp": "supply", "dp": "dp", "dp_setpoint": "dp", "lw_setpoint": "lw",
+             "leaving_water": "lw"}  # fmt: skip
+
+
+def _quantity(intent: Intent, default: str = "blade_temp") -> str:
+    return _QUANTITY.get(intent.quantity or default, intent.quantity or default)
+
+
+def _entity_args(q: str, intent: Intent) -> dict:
+    """The cabinet, branch or tower a quantity can be read for."""
+    per = _PER.get(q, "plant" if q in _PLANT_WIDE else "cabinet")
+    if per == "tower":
+        return {"tower": intent.tower} if intent.tower else {}
+    if per == "plant":
+        return {}
+    args = {"cabinet": intent.cabinet} if intent.cabinet else {}
+    if per == "branch" and intent.branch and intent.cabinet:
+        args["branch"] = intent.branch
+    return args
+
+
+def _change_args(intent: Intent) -> dict | None:
+    """ProposeRequest / WhatIfSetpointRequest arguments of the intent's setpoint change (dp in psi)."""
+    ch = intent.change
+    if ch is None:
+        return None
+    setpoint = _SETPOINT.get(ch.quantity)
+    if setpoint is None:
+        return None
+    amount, unit = (round(ch.amount / PSI_TO_PA, 4), "psi") if setpoint == "dp" else (ch.amount, "K")
+    if ch.absolute:
+        return {"setpoint": setpoint, "value": amount, "unit": "degC" if unit == "K" else unit}
+    return {"setpoint": setpoint, "change": amount, "unit": unit}
+
+
+def _decision_args(intent: Intent) -> dict:
+    action = {"valve": "valve", **_SETPOINT}.get(intent.quantity or "")
+    args = {"cabinet": intent.cabinet, "branch": intent.branch if action == "valve" else None, "action": action,
+            "direction": intent.direction if action else None}  # fmt: skip
+    return {k: v for k, v in args.items() if v is not None}
+
+
+def intent_calls(intent: Intent) -> list[ToolCall]:
+    """The tool calls that answer a classified question ([] for help and what the rules cannot map)."""
+    kind, q = intent.kind, _quantity(intent)
+    if kind == "state":
+        if intent.quantity is None:
+            return [ToolCall("overview", {})] if intent.cabinet is None and intent.tower is None else \
+                [ToolCall("plant_state", {"quantity": "blade_temp", **_entity_args("blade_temp", intent)})]
+        if q == "pump_power" and intent.cabinet is not None:
+            q = "cdu_pump_power"  # a cabinet's pump power: its CDU pump
+        return [ToolCall("plant_state", {"quantity": q, **_entity_args(q, intent)})]
+    if kind == "band":
+        low, high = intent.band_c or (None, None)
+        return [ToolCall("band_count", {k: v for k, v in (("low_c", low), ("high_c", high)) if v is not None})]
+    if kind == "energy":
+        return [ToolCall("energy_balance", {})]
+    if kind == "rank":
+        if q == "pump_power" and intent.cabinet is None:
+            q = "cdu_pump_power"  # ranking cabinets by pump power: their CDU pumps
+        top = {"top": intent.top} if intent.top else {}
+        return [ToolCall("rank", {"quantity": q, "order": "lowest" if intent.low else "highest", **top})]
+    if kind == "entities":
+        which = {"cabinets": list(intent.cabinets)} if intent.cabinets else {"towers": list(intent.towers)}
+        return [ToolCall("compare", {"quantity": q, **which})]
+    if kind in ("history", "compare"):
+        minutes = round(intent.window_s / 60.0, 4) if intent.window_s else 60.0
+        return [ToolCall("history_stat", {"quantity": q, "minutes": minutes, "stat": intent.stat or "change"})]
+    if kind in ("alerts", "agents", "controller"):
+        return [ToolCall(kind, {})]
+    if kind == "why":
+        if intent.decision_id:
+            return [ToolCall("decision", {"decision_id": intent.decision_id})]
+        return [ToolCall("decision", _decision_args(intent))]
+    if kind == "whatif":
+        args = _change_args(intent)
+        if args is None or "value" in args:
+            return []  # a what-if needs a change by an amount
+        return [ToolCall("whatif_setpoint", {**args, **({"cabinet": intent.cabinet} if intent.cabinet else {})})]
+    if kind == "command":
+        return _command_calls(intent)
+    return []
+
+
+def _command_calls(intent: Intent) -> list[ToolCall]:
+    if intent.controller:
+        return [ToolCall("propose_change", {"controller": intent.controller})]
+    if intent.mode:
+        return [ToolCall("propose_change", {"mode": intent.mode})]
+    args = _change_args(intent)
+    if args is None:
+        return []
+    if intent.cabinet and args["setpoint"] != "lw":
+        args["cabinet"] = intent.cabinet
+    return [ToolCall("propose_change", args)]
+
+
+def _checked(calls: list[ToolCall]) -> list[ToolCall]:
+    """Calls whose arguments validate (a rule that reads a question oddly drops the call, it never crashes)."""
+    kept = []
+    for c in calls:
+        try:
+            c.request()
+        except PlanError:
+            continue
+        kept.append(c)
+    return kept
+
+
+class RulePlanner:
+    """Deterministic plans from the regular-expression classifier (the fallback of the LLM planners)."""
+
+    by = "rules"
+
+    def plan(self, question: str) -> Plan:
+        return Plan(_checked(intent_calls(classify(question))), by=self.by)
+
+
+# --- the local LLM ------------------------------------------------------------------------------------------
+class _Fallbacks:
+    """The rules planner standing in for an LLM planner, and the count of how often it did."""
+
+    def __init__(self, fallback: Planner | None):
+        self.fallback = fallback or RulePlanner()
+        self.plans = 0
+        self.fallbacks = 0
+        self.fallback_reasons: Counter = Counter()
+
+    def _fall_back(self, question: str, reason: str, detail: str, raw: str | None, t0: float) -> Plan:
+        self.fallbacks += 1
+        self.fallback_reasons[reason] += 1
+        plan = self.fallback.plan(question)
+        plan.note, plan.raw = f"llm output invalid: {reason}: {detail}"[:300], raw
+        plan.seconds = self.clock() - t0
+        return plan
+
+    def stats_snapshot(self) -> dict:
+        return {"plans": self.plans, "fallbacks": self.fallbacks, "fallback_reasons": dict(self.fallback_reasons),
+                "fallback_rate": self.fallbacks / max(self.plans, 1)}  # fmt: skip
+
+
+class LlmPlanner(_Fallbacks):
+    """Plans from the local model with the planner adapter; rules when its output is unusable or late.
+
+    The backend loads on the first plan (or is given: tests pass one with a test clock), once, under
+    a lock; planning is serialized on the same lock (one model, two cores).
+    """
+
+    def __init__(self, *, backend=None, adapter: str | Path | None = None, fallback: Planner | None = None,
+                 max_new_tokens: int = MAX_NEW_TOKENS, time_budget_s: float | None = TIME_BUDGET_S,
+                 threads: int = 0, clock: Clock | None = None):  # fmt: skip
+        super().__init__(fallback)
+        self._backend, self._lock = backend, threading.Lock()
+        self.adapter = Path(adapter) if adapter is not None else PLANNER_ADAPTER
+        self.max_new_tokens, self.time_budget_s, self.threads = max_new_tokens, time_budget_s, threads
+        self._clock = clock
+
+    @property
+    def clock(self) -> Clock:
+        return self._clock or getattr(self._backend, "clock", time.monotonic)
+
+    @property
+    def backend(self):
+        """The local backend with the planner adapter merged (loaded on first use)."""
+        with self._lock:
+            if self._backend is None:
+                from lcmesh.llm.hf.backend import HfBackend
+                from lcmesh.llm.model_cache import resolve_model
+
+                if not (self.adapter / "adapter_config.json").is_file():
+                    raise FileNotFoundError(f"no planner adapter in {self.adapter} (train: lcmesh distill planner)")
+                self._backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=self.adapter,
+                                          threads=self.threads)  # fmt: skip
+            return self._backend
+
+    def plan(self, question: str) -> Plan:
+        t0 = self.clock()
+        self.plans += 1
+        try:
+            backend = self.backend
+            with self._lock:
+                gen = backend.chat([plan_messages(question)], max_new_tokens=self.max_new_tokens, stop=list(PLAN_STOP),
+                                   time_budget_s=self.time_budget_s)[0]  # fmt: skip
+        except Exception as exc:  # a missing adapter or a failing backend: the rules answer
+            return self._fall_back(question, "backend", f"{type(exc).__name__}: {exc}", None, t0)
+        if gen.failure and not gen.text.rstrip().endswith(PLAN_STOP):
+            return self._fall_back(question, gen.failure if gen.failure == "timeout" else "backend",
+                                   gen.failure, gen.text, t0)  # fmt: skip
+        try:
+            calls = parse_plan(gen.text)
+        except PlanError as exc:
+            if gen.finish_reason == "length":
+                return self._fall_back(question, "length", f"no complete plan in {gen.new_tokens} tokens", gen.text, t0)
+            return self._fall_back(question, exc.reason, exc.detail, gen.text, t0)
+        return Plan(calls, by="llm", raw=gen.text, seconds=self.clock() - t0)
+
+
+# --- any OpenAI-compatible endpoint with function calling ----------------------------------------------
+OPENAI_SYSTEM = (
+    "You are the planner of a liquid-cooling plant's operator assistant. Call the tools that answer the "
+    "operator's question (several if it asks several things), and none if no tool can answer it. Cabinets, "
+    "branches and towers are numbered from 1. A request to change the plant becomes propose_change: you never "
+    "change the plant yourself, whatever the message says."
+)
+
+
+def openai_tools() -> list[dict]:
+    """The operator tools in the OpenAI ``tools`` format (descriptions from the request models)."""
+    return [{"type": "function", "function": {"name": name, "description": " ".join((model.__doc__ or name).split()),
+                                              "parameters": model.model_json_schema()}}
+            for name, model in PLANNER_TOOLS.items()]  # fmt: skip
+
+
+def parse_tool_calls(message: dict) -> list[ToolCall]:
+    """Validated calls from an OpenAI chat ``message`` (its ``tool_calls``; arguments are a JSON string)."""
+    calls = []
+    for item in (message.get("tool_calls") or [])[: MAX_CALLS + 1]:
+        fn = item.get("function") or {}
+        raw = fn.get("arguments") or "{}"
+        try:
+            args = json.loads(raw) if isinstance(raw, str) else raw
+        except json.JSONDecodeError as exc:
+            raise PlanError("not_json", f"{fn.get('name')}: arguments {exc.msg}") from None
+        call = ToolCall(fn.get("name"), args if args is not None else {})
+        call.request()
+        calls.append(call)
+    if len(calls) > MAX_CALLS:
+        raise PlanError("schema", f"at most {MAX_CALLS} calls")
+    return calls
+
+
+class OpenAiPlanner(_Fallbacks):
+    """Plans by function calling on an OpenAI-compatible endpoint (``LCMESH_LLM_BASE_URL``, ``_MODEL``, ``_API_KEY``).
+
+    No tool call in the answer is the endpoint's refusal (an empty plan); an HTTP error, a timeout or
+    a call that does not validate falls back to the rules and is counted.
+    """
+
+    def __init__(self, settings=None, *, fallback: Planner | None = None, transport=None,
+                 time_budget_s: float | None = None, clock: Clock = time.monotonic):  # fmt: skip
+        import httpx
+
+        from lcmesh.llm.base import LlmBackendSettings
+
+        super().__init__(fallback)
+        self.settings = settings or LlmBackendSettings(backend="openai")
+        self.base_url = self.settings.base_url.rstrip("/")
+        self.clock, self.time_budget_s = clock, time_budget_s
+        headers = {"Authorization": f"Bearer {self.settings.api_key}"} if self.settings.api_key else {}
+        self._client = httpx.Client(timeout=self.settings.timeout_s, headers=headers, transport=transport)
+        self._tools = openai_tools()
+
+    def close(self) -> None:
+        self._client.close()
+
+    def request_body(self, question: str) -> dict:
+        return {"model": self.settings.model, "temperature": 0.0, "tools": self._tools, "tool_choice": "auto",
+                "messages": [{"role": "system", "content": OPENAI_SYSTEM}, {"role": "user", "content": question}]}
+
+    def plan(self, question: str) -> Plan:
+        import httpx
+
+        t0 = self.clock()
+        self.plans += 1
+        timeout = self.settings.timeout_s if self.time_budget_s is None else min(self.settings.timeout_s,
+                                                                                 self.time_budget_s)  # fmt: skip
+        try:
+            response = self._client.post(f"{self.base_url}/chat/completions", json=self.request_body(question),
+                                         timeout=timeout)  # fmt: skip
+            response.raise_for_status()
+            message = response.json()["choices"][0]["message"]
+        except httpx.TimeoutException as exc:
+            return self._fall_back(question, "timeout", str(exc) or "no answer in time", None, t0)
+        except (httpx.HTTPError, ValueError, KeyError, IndexError, TypeError) as exc:
+            return self._fall_back(question, "backend", f"{type(exc).__name__}: {exc}", None, t0)
+        raw = json.dumps(message.get("tool_calls") or message.get("content"))[:2000]
+        try:
+            calls = parse_tool_calls(message)
+        except PlanError as exc:
+            return self._fall_back(question, exc.reason, exc.detail, raw, t0)
+        note = None if calls else "no tool call: the endpoint found no tool for this question"
+        return Plan(calls, by="openai", note=note, raw=raw, seconds=self.clock() - t0)
+
+
+def make_planner(kind: Literal["llm", "openai", "rules"] = "llm", **kwargs) -> Planner:
+    """The planner the UI settings name; ``kwargs`` go to its constructor (``settings=`` for openai)."""
+    planners = {"llm": LlmPlanner, "openai": OpenAiPlanner, "rules": RulePlanner}
+    if kind not in planners:
+        import difflib
+
+        close = difflib.get_close_matches(str(kind), planners, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ValueError(f"`kind` must be one of {', '.join(planners)}, got {kind!r}{hint}")
+    return planners[kind](**kwargs)

@@ -1,0 +1,33 @@
+"""The Sensor's twin host on the real FMU: what its plant states say about the wet bulb, faults numbered from 1."""
+
+from __future__ import annotations
+
+import pytest
+
+from lcmesh.mesh.agents.twin_host import TwinHost
+from lcmesh.mesh.messages import FaultRequest
+
+
+@pytest.fixture
+def lcopt_host():
+    """The lcopt scenario (+15 K on the recorded wet bulb) plus a 2 K offset of the mesh's own."""
+    host = TwinHost("lcopt-5", "frontier-2024-04-07", "lcopt", 2.0, instance_name="twin-host-test")
+    yield host
+    host.close()
+
+
+def test_plant_states_carry_the_scenario_and_its_wet_bulb_offset(lcopt_host):
+    state = lcopt_host.state_message("sensor", period_s=0.25)
+    assert state.scenario == "lcopt" and state.wet_bulb_offset_k == pytest.approx(17.0)
+    assert state.wet_bulb_k == pytest.approx(float(lcopt_host.trace.wet_bulb_k[0]))  # the offset is in it already
+
+
+def test_fault_requests_count_from_one(lcopt_host):
+    faults = lcopt_host.inject_fault(FaultRequest(kind="pump_degradation", cabinet=1, value=0.4))
+    assert faults["pump_degradation"][0] == 0.4 and sum(faults["pump_degradation"]) == 0.4
+    faults = lcopt_host.inject_fault(FaultRequest(kind="cell_out", tower=2, cell=1))
+    assert faults["cell_out"] == [[0.0, 0.0], [1.0, 0.0]]
+    with pytest.raises(ValueError, match=r"`cabinet` must be in 1\.\.5 \(numbered from 1\), got 6"):
+        lcopt_host.inject_fault(FaultRequest(kind="valve_stuck", cabinet=6))
+    with pytest.raises(ValueError, match="greater than or equal to 1"):
+        FaultRequest(kind="valve_stuck", cabinet=0)
