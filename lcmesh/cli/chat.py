@@ -16,7 +16,8 @@ def bench_chat(
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
     split: Annotated[str, typer.Option(help="test (the evidence), dev (for tuning) or all")] = "test",
-    planners: Annotated[str, typer.Option(help="comma list of llm, rules, openai")] = "llm,rules",
+    planners: Annotated[str, typer.Option(help="comma list of llm, rules, openai, oracle (the expected calls)")] = \
+        "llm,rules,oracle",
     site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
@@ -35,12 +36,18 @@ def bench_chat(
     report = {"site": f"{sources.manifest.system}, {sources.manifest.controller}, {site_minutes:g} min, "
                       f"{sources.manifest.scenario}",
               "command": "lcmesh bench chat " + " ".join(sys.argv[3:]), "machine": machine_info(), "planners": {}}
-    for name in [p.strip() for p in planners.split(",") if p.strip()]:
-        planner = make_planner(name)
-        engine = chat.bench_engine(sources, planner, run_tool)
+    names = [p.strip() for p in planners.split(",") if p.strip()]
+    unknown = [n for n in names if n not in ("llm", "openai", "rules", "oracle")]
+    if unknown:
+        fail(f"--planners: unknown {', '.join(unknown)} (known: llm, openai, rules, oracle)")
+    for name in names:
+        planner = None if name == "oracle" else make_planner(name)
         report["planners"][name] = {}
         for part in splits:
             questions = chat.load_questions(part)
+            engine = chat.bench_engine(sources, planner or chat.OraclePlanner(questions), run_tool)
+            if planner is None:  # the ceiling: the expected calls exactly, no second opinion from the rules
+                engine.second_opinion = lambda message, plan: plan
             with progress_bar() as progress:
                 task = progress.add_task(f"{name} on {part}", total=len(questions))
                 rows = chat.run_split(questions, engine, run_tool,

@@ -558,6 +558,9 @@ def plant_state(req: StateRequest, ctx: Any) -> StateResponse:
     if q.per == "tower" and (req.cabinet is not None or req.branch is not None):
         raise ToolInputError(f"the {q.label} is per tower, not per cabinet; ask for a tower")
     values = entity_values(q, state, system)
+    if q.per == "plant":  # one value for the plant: a cabinet or tower named with it does not narrow it
+        return StateResponse(quantity=q.key, label=q.label, unit=q.unit, step=state.step, time_s=state.time_s,
+                             per=q.per, values=values, plant=values[0].value, plant_reduce=q.plant)  # fmt: skip
     picked = [v for v in values
               if (req.cabinet is None or v.cabinet == req.cabinet)
               and (req.branch is None or q.per != "branch" or v.branch == req.branch)

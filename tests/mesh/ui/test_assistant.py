@@ -154,3 +154,8 @@ def test_an_injection_proposes_at_most_and_changes_nothing(engine, site):
         assert reply["proposed_command"] is None  # 45 °C is outside the guardrails: nothing to confirm
     assert "must stay within 18.0 to 40.0 °C" in reply["answer"]
     assert site.applied().action.model_dump() == before and site.config().version == version
+
+
+def test_a_plant_wide_quantity_asked_for_a_tower_is_the_plant_value(engine, stored):
+    reply = ask(engine, "plant_state", quantity="wet_bulb", tower=1)
+    assert shown(stored["wet_bulb_k"] - K0, "degC") in numbers_in(reply["answer"])

@@ -113,19 +113,90 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"reject|rechaz|abgegeben|\brejet", {"heat_rejected"}),
     (r"leaving[- ]water|\blw\b|\bbasin\b", {"leaving_water", "lw_setpoint", "lw"}),
     (r"\b(last|past|previous)\s+(\d+\s*)?(min|mins|minutes?|hours?|h|hrs?|days?)\b|\bago\b|\bhace\b|\bvor\s+\d"
-     r"|\bil y a\b", {"history"}),
+     r"|\bil y a\b|[uú]ltima hora|[uú]ltimos \d+|letzten (stunde|\d+)|derni[eè]re heure|derni[eè]res \d+", {"history"}),
+    (r"\bband\b|\bbanda\b|\bbande\b|compliance", {"in_band"}),
+    (r"\bsu[p]{1,2}ly|impulsi[oó]n|vorlauf|\bd[ée]part\b", {"supply", "supply_temp", "supply_setpoint"}),
+    (r"\b(towers?|torres?|t[uü]rme?|tours?|ct)\b(?!\s*#?\s*\d)", {"tower", "leaving_water", "lw_setpoint", "lw",
+                                                                     "approach", "fan_speed", "tower_power"}),
+    (r"hottest|warmest|coolest|coldest|\bhighest|\blowest|m[aá]s (caliente|fr[ií]o|alt[oa]|baj[oa])|hei(ß|ss)est"
+     r"|k[aä]ltest|h[oö]chst|niedrigst|plus (chaud|froid|[ée]lev[ée]|bas)", {"ranking"}),
+    (r"coolest|coldest|\blowest|\bleast\b|m[aá]s fr[ií]o|m[aá]s baj[oa]|k[aä]ltest|niedrigst|plus froid|plus bas",
+     {"lowest"}),
+    (r"\bmanual\b|\bmanuel\b|\bmanuell\b|\bauto(matic)?\s+mode|\bmodo\b|\bmodus\b", {"mode"}),
+    (r"what (if|would happen)|\bsuppose\b|\bsimulat|qu[eé] pasar[ií]a|was w[aä]re|was passiert,? wenn"
+     r"|que se passerait|\bet si\b", {"whatif"}),
 )]  # fmt: skip
 TOOL_COVERS: dict[str, frozenset[str]] = {k: frozenset(v) for k, v in {
     "energy_balance": {"pue", "it_power", "heat_rejected", "cdu_heat", "cooling_power", "tower_power", "pump_power"},
-    "overview": {"pue", "blade_temp", "in_band", "it_power", "tower_power", "pump_power", "wet_bulb", "controller"},
+    "overview": {"pue", "blade_temp", "in_band", "it_power", "tower_power", "pump_power", "wet_bulb", "controller",
+                 "ranking"},
     "band_count": {"in_band", "blade_temp"}, "alerts": {"alerts"}, "agents": {"agents"},
-    "controller": {"controller", "history"}, "decision": {"valve", "supply", "dp", "lw", "controller", "history"},
+    "controller": {"controller", "history", "mode"},
+    "decision": {"valve", "supply", "dp", "lw", "controller", "history"},
+    "rank": {"ranking"}, "compare": {"ranking", "lowest"},
     "history_stat": {"history"},
-    "whatif_setpoint": {"blade_temp", "in_band", "tower_power", "pump_power", "cooling_power"},
+    "whatif_setpoint": {"whatif", "blade_temp", "in_band", "tower_power", "pump_power", "cooling_power"},
     "propose_change": {"controller"},
 }.items()}  # fmt: skip
 _SETPOINT_CONCEPTS = {"supply": {"supply", "supply_setpoint", "supply_temp"}, "dp": {"dp", "dp_setpoint"},
                       "lw": {"lw", "lw_setpoint", "leaving_water"}}  # fmt: skip
+
+
+# Things no tool knows: a plan for such a question answers something else, so the question is refused.
+OUT_OF_SCOPE = re.compile(
+    r"\b(price|prices|cost|costs|bill|tariff|precio|cuesta|cuestan|kostet|kosten|preis|prix|co[uû]te?|jobs?|users?"
+    r"|trabajos?|usuarios?|benutzer|utilisateurs?|forecast|pron[oó]stico|vorhersage|pr[ée]vision|tomorrow|ma[nñ]ana"
+    r"|morgen|demain|next week|joke|chiste|witz|blague|single|married|love|weather in|other sites?|password)\b",
+    re.IGNORECASE)  # fmt: skip
+# An order, not a question: only a proposal answers it (chat never acts; the operator confirms).
+COMMAND = re.compile(
+    r"(^|\b(and|und|y|et|then|dann|luego|puis)\s+|^(please|bitte|por favor|s'il (te|vous) pla[iî]t)\s+)"
+    r"(set|switch|change|raise|lower|increase|decrease|put|turn|apply|pon|pone|cambia|sube|baja|pasa|establece"
+    r"|ajusta|setze|setz|stelle|stell|schalte|schalt|erh[oö]he|senke|wechsle|passe|mets|r[eè]gle|augmente|baisse)\b",
+    re.IGNORECASE)  # fmt: skip
+_UNITS = [(re.compile(p, re.IGNORECASE), unit) for p, unit in (
+    (r"\d\s*(°\s*f\b|f\b|fahrenheit)", "degF"), (r"\d\s*bar\b", "bar"), (r"\d\s*kpa\b", "kPa"),
+)]  # fmt: skip
+_HOURS = re.compile(r"(\d+(?:\.\d+)?)\s*(h|hrs?|hours?|horas?|stunden?|heures?)\b", re.IGNORECASE)
+
+
+def _arg_numbers(calls: list[ToolCall]) -> set[float]:
+    """Every number in the plan's arguments, with the request models' defaults filled in."""
+    out: set[float] = set()
+
+    def walk(value: Any) -> None:
+        if isinstance(value, bool):
+            return
+        if isinstance(value, (int, float)):
+            out.add(round(abs(float(value)), 6))
+        elif isinstance(value, (list, tuple)):
+            for v in value:
+                walk(v)
+        elif isinstance(value, dict):
+            for v in value.values():
+                walk(v)
+
+    for call in calls:
+        spec = registry.TOOLS.get(call.tool)
+        try:
+            walk(spec.request_model.model_validate(call.args).model_dump() if spec else call.args)
+        except ValueError:
+            walk(call.args)
+    return out
+
+
+def _question_numbers(question: str) -> list[tuple[str, set[float]]]:
+    """Numbers the question states (not entity numbers), each with the values a plan may carry for it."""
+    entity_spans = [m.span() for m in semantic.ENTITY.finditer(question)]
+    hours = {m.start(1): float(m.group(1)) * 60.0 for m in _HOURS.finditer(question)}
+    out = []
+    for m in re.finditer(r"(?<![\w.])\d+(?:\.\d+)?", question):
+        if any(a <= m.start() < b for a, b in entity_spans):
+            continue
+        value = float(m.group(0))
+        ok = {round(value, 6)} | ({round(hours[m.start()], 6)} if m.start() in hours else set())
+        out.append((m.group(0), ok))
+    return out
 
 
 def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
@@ -140,6 +211,10 @@ def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
             concepts |= _SETPOINT_CONCEPTS.get(args["setpoint"], set())
         if args.get("action"):
             concepts |= _SETPOINT_CONCEPTS.get(args["action"], {args["action"]})
+        if args.get("order") == "lowest":
+            concepts.add("lowest")
+        if args.get("mode"):
+            concepts.add("mode")
         for key in ("cabinet", "tower", "branch"):
             if args.get(key) is not None:
                 entities.add(f"{key} {args[key]}")
@@ -160,6 +235,14 @@ def uncovered(question: str, calls: list[ToolCall]) -> list[str]:
     for pattern, wanted in QUESTION_CONCEPTS:
         if pattern.search(question) and not wanted & concepts:
             missing.append(sorted(wanted)[0])
+    if calls and OUT_OF_SCOPE.search(question):
+        missing.append(f"“{OUT_OF_SCOPE.search(question).group(0)}” (no tool knows it)")
+    if COMMAND.search(question) and not any(c.tool == "propose_change" for c in calls):
+        missing.append("the change asked for")
+    numbers = _arg_numbers(calls)
+    missing += [text for text, ok in _question_numbers(question) if not ok & numbers]
+    units = {c.args.get("unit") for c in calls}
+    missing += [unit for pattern, unit in _UNITS if pattern.search(question) and unit not in units]
     return missing
 
 
@@ -177,18 +260,40 @@ class ChatEngine:
         self.ungrounded = 0  # drafts the guard refused: a writer bug
         self.rejected_phrasings = 0
         self.uncovered = 0  # answers whose plan missed something the question names (sent, not grounded)
+        self.second_opinions = 0  # model plans replaced by the rules' because the rules covered more
+        self._rules = RulePlanner()
         self.not_ready = 0
         self.latency_s: list[float] = []
 
     def ask(self, message: str) -> dict[str, Any]:
         """The answer to `message`; NotReady (HTTP 503) when the data it needs is not there yet."""
         t0 = time.perf_counter()
-        plan = self.planner.plan(message)
+        plan = self.second_opinion(message, self.planner.plan(message))
         reply = self.answer(message, plan)
         elapsed = time.perf_counter() - t0
         self.latency_s.append(elapsed)
         del self.latency_s[:-1000]
         return {**reply, "elapsed_ms": round(elapsed * 1e3, 2)}
+
+    def second_opinion(self, message: str, plan: Plan) -> Plan:
+        """The rules' plan instead of a model's that leaves out something the question names and the rules cover.
+
+        A counted fallback (``planned_by`` "rules", the note says what the model's plan missed); the model's
+        plan stands whenever the rules cover no more.
+        """
+        if plan.calls and OUT_OF_SCOPE.search(message):
+            self.second_opinions += 1
+            return Plan([], plan.by, f"“{OUT_OF_SCOPE.search(message).group(0)}” is nothing the tools know")
+        if plan.by == "rules" or isinstance(self.planner, RulePlanner):
+            return plan
+        missing = uncovered(message, plan.calls)
+        if not missing:
+            return plan
+        alternative = self._rules.plan(message)
+        if alternative.calls and len(uncovered(message, alternative.calls)) < len(missing):
+            self.second_opinions += 1
+            return Plan(alternative.calls, "rules", f"the {plan.by} plan left out {', '.join(missing)}")
+        return plan
 
     def answer(self, message: str, plan: Plan) -> dict[str, Any]:
         """Run `plan`'s calls and write, check and phrase the answer (no timing)."""
@@ -210,7 +315,15 @@ class ChatEngine:
                 failed = True
                 parts.append(_tool_error(book, call, result.error or "failed", k, lang))
                 continue
-            parts.append(writer.write(call.tool, result.result, call.args, book, k, lang))
+            try:
+                parts.append(writer.write(call.tool, result.result, call.args, book, k, lang))
+            except Exception as exc:  # a writer bug must cost one part of one answer, not the request
+                log.exception("chat writer for %s failed on %r", call.tool, message)
+                self.ungrounded += 1
+                failed = True
+                parts.append(_tool_error(book, call, f"could not write the {call.tool} result ({type(exc).__name__})",
+                                         k, lang))
+                continue
             if call.tool == "propose_change":
                 proposed = _proposal(result.result) or proposed
             elif call.tool == "whatif_setpoint" and proposed is None:  # the change it tried, ready to confirm
