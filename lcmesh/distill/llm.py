@@ -169,7 +169,7 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     """The whole pipeline; returns the manifest it wrote beside the adapter."""
     from lcmesh.distill.ppo import git_commit
     from lcmesh.llm.hf.backend import HfBackend, read_adapter_manifest
-    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, train_lora
+    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
     from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
     from lcmesh.twin.system import load_system
 
@@ -203,14 +203,7 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
                                 max_len=cfg.max_len,
                                 seed=cfg.seed, threads=cfg.threads, init_adapter=str(parent or ""))  # fmt: skip
     parent_manifest = read_adapter_manifest(parent) if parent else None
-    log_path, t_train = out / "train_log.jsonl", time.perf_counter()
-    log_path.write_text("")
-
-    def on_step(i: int, n: int, loss: float) -> None:
-        with log_path.open("a") as log:
-            log.write(json.dumps({"step": i, "of": n, "loss": round(loss, 5),
-                                  "elapsed_s": round(time.perf_counter() - t_train, 1)}) + "\n")  # fmt: skip
-        say(f"QLoRA ({cfg.quant}) loss {loss:.3f}", i, n)
+    on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
 
     model, _, result = train_lora(model_dir, samples + explain, train_cfg, on_step=on_step)
     adapter_file = save_adapter(model, out)

@@ -747,7 +747,7 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
 
     from lcmesh.distill.llm import _plot_losses
     from lcmesh.distill.ppo import git_commit
-    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, train_lora
+    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
     from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
 
     say = progress or (lambda _s, _d, _t: None)
@@ -763,14 +763,7 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
     train_cfg = LoraTrainConfig(quant=cfg.quant, r=cfg.r, alpha=cfg.alpha, epochs=cfg.epochs, lr=cfg.lr,
                                 batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens, max_len=512, seed=cfg.seed,
                                 threads=cfg.threads, target_modules=lora_targets(cfg.lora_layers))  # fmt: skip
-    log_path, t_train = out / "train_log.jsonl", time.perf_counter()
-    log_path.write_text("")
-
-    def on_step(i: int, n: int, loss: float) -> None:
-        with log_path.open("a") as log:
-            log.write(json.dumps({"step": i, "of": n, "loss": round(loss, 5),
-                                  "elapsed_s": round(time.perf_counter() - t_train, 1)}) + "\n")  # fmt: skip
-        say(f"QLoRA ({cfg.quant}) loss {loss:.3f}", i, n)
+    on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
 
     model_dir = resolve_model("smollm2-135m-instruct")
     model, _, result = train_lora(model_dir, training_pairs(train), train_cfg, on_step=on_step)

@@ -136,3 +136,17 @@ def test_same_seed_same_adapter():
     assert a.keys() == b.keys() and all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a)
     other = train_lora(model_dir, _tiny_samples(8), LoraTrainConfig(quant="nf4", epochs=1, batch_size=4, seed=8))
     assert other[2].losses != runs[0][2].losses
+
+
+def test_step_log_appends_each_step_and_reports_it(tmp_path):
+    import json
+
+    from lcmesh.llm.hf.train import step_log
+
+    said = []
+    on_step = step_log(tmp_path / "train_log.jsonl", lambda text, i, n: said.append((text, i, n)), "QLoRA (nf4)")
+    on_step(1, 2, 0.5)
+    on_step(2, 2, 0.25)
+    rows = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
+    assert [(r["step"], r["of"], r["loss"]) for r in rows] == [(1, 2, 0.5), (2, 2, 0.25)]
+    assert said[-1] == ("QLoRA (nf4) loss 0.250", 2, 2)

@@ -205,6 +205,22 @@ def _collate(batch: list[tuple[list[int], int]], pad_id: int, device) -> tuple[t
     return ids.to(device), mask.to(device), labels.to(device)
 
 
+def step_log(path: Path, say: Callable[[str, int, int], None], label: str) -> Callable[[int, int, float], None]:
+    """An ``on_step`` for ``train_lora`` that appends each step's loss to `path` (JSON lines) and reports it."""
+    import json
+
+    path.write_text("")
+    t0 = time.perf_counter()
+
+    def on_step(i: int, n: int, loss: float) -> None:
+        with path.open("a") as log:
+            log.write(json.dumps({"step": i, "of": n, "loss": round(loss, 5),
+                                  "elapsed_s": round(time.perf_counter() - t0, 1)}) + "\n")  # fmt: skip
+        say(f"{label} loss {loss:.3f}", i, n)
+
+    return on_step
+
+
 def save_adapter(model, out_dir: Path) -> Path:
     """Write ``adapter_config.json`` and the LoRA weights in bfloat16 (half the bytes, ample precision)."""
     from peft import get_peft_model_state_dict
