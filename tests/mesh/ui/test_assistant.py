@@ -159,3 +159,22 @@ def test_an_injection_proposes_at_most_and_changes_nothing(engine, site):
 def test_a_plant_wide_quantity_asked_for_a_tower_is_the_plant_value(engine, stored):
     reply = ask(engine, "plant_state", quantity="wet_bulb", tower=1)
     assert shown(stored["wet_bulb_k"] - K0, "degC") in numbers_in(reply["answer"])
+
+
+def test_a_model_plan_that_leaves_out_what_the_rules_cover_is_replaced_and_counted(site):
+    class Missing:  # a planner that answers another question: the wet bulb for "which cabinet runs hottest?"
+        def plan(self, question):
+            return Plan([ToolCall("plant_state", {"quantity": "wet_bulb"})], "llm")
+
+    engine = ChatEngine(site, planner=Missing(), runner=ToolRunner(site))
+    reply = engine.ask("which cabinet runs hottest?")
+    assert reply["planned_by"] == "rules" and reply["plan"][0]["tool"] == "rank" and reply["grounded"]
+    assert "left out ranking" in reply["plan_note"] and engine.second_opinions == 1
+    reply = engine.ask("what does electricity cost today?")
+    assert reply["refused"] and not reply["grounded"]
+
+
+def test_a_plan_that_misses_a_named_cabinet_is_sent_but_not_grounded(engine):
+    reply = engine.answer("supply temperature of cabinet 3", Plan([ToolCall("plant_state", {"quantity": "supply_temp",
+                                                                                            "cabinet": 2})], "test"))
+    assert not reply["grounded"] and "cabinet 3" in reply["plan_note"]
