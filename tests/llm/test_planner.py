@@ -238,3 +238,15 @@ def test_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeout(planner_bac
         plan = planner.plan("any alerts?")
     assert plan.by == "rules" and plan.note.startswith("llm output invalid: timeout")
     assert clock.passes == 0 and planner.fallback_reasons == {"timeout": 1}  # the pass was never started
+
+
+def test_while_the_model_loads_the_rules_plan_and_say_so(tmp_path):
+    from lcmesh.mesh.agents.ui.planner import LlmPlanner
+
+    planner = LlmPlanner(adapter=tmp_path)  # no adapter here: the load fails, the rules keep answering
+    planner._warming = True
+    loading = planner.plan("which cabinet runs hottest?")
+    assert loading.by == "rules" and "still loading" in loading.note
+    planner.warm().join(timeout=60)
+    after = planner.plan("which cabinet runs hottest?")
+    assert after.by == "rules" and "no planner adapter" in after.note and planner.fallbacks == 2

@@ -75,6 +75,8 @@ class UiAgent(Agent):
         gateway = MeshGateway(self.bus, self.site, ui.bus_timeout_s)
         phraser, note = make_phraser(ui.phraser, adapter=ui.phraser_adapter)
         planner = make_planner(ui.planner)
+        if hasattr(planner, "warm"):  # the local model loads beside the UI, not inside the first question
+            planner.warm()
         sources = ChatSources(system=system, state=lambda: store.state, history=self.history_reader,
                               config=lambda: self.config_doc, agents=store.agents_view, gateway=gateway,
                               applied=store.latest_applied)  # fmt: skip

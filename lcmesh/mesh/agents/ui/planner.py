@@ -19,6 +19,7 @@ say so in the plan (``by="rules"``, ``note="llm output invalid: ..."``) and coun
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 from collections import Counter
@@ -47,8 +48,9 @@ PLANNER_TOOLS: dict[str, type[BaseModel]] = {
 PLANNER_ADAPTER = Path(__file__).resolve().parents[3] / "artifacts" / "llm-planner"
 MAX_CALLS = 4  # a question asks a few things at most; more is a runaway answer
 PLAN_STOP = ("}]", "[]")  # a plan's JSON list ends with one of these (no argument is an empty list)
+log = logging.getLogger("lcmesh.mesh.agents.ui")
 MAX_NEW_TOKENS = 96  # two calls with arguments take about 60
-TIME_BUDGET_S = 1.5  # the plan's share of the 3 s answer; then the rules plan
+TIME_BUDGET_S = 2.4  # the plan's share of the 3 s answer (the mesh's agents share the cores); then the rules plan
 
 
 @dataclass(frozen=True)
@@ -324,6 +326,7 @@ class LlmPlanner(_Fallbacks):
                  threads: int = 0, clock: Clock | None = None):  # fmt: skip
         super().__init__(fallback)
         self._backend, self._lock = backend, threading.Lock()
+        self._ready, self._warming = threading.Event(), False
         self.adapter = Path(adapter) if adapter is not None else PLANNER_ADAPTER
         self.max_new_tokens, self.time_budget_s, self.threads = max_new_tokens, time_budget_s, threads
         self._clock = clock
@@ -344,11 +347,30 @@ class LlmPlanner(_Fallbacks):
                     raise FileNotFoundError(f"no planner adapter in {self.adapter} (train: lcmesh distill planner)")
                 self._backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=self.adapter,
                                           threads=self.threads)  # fmt: skip
+            self._ready.set()
             return self._backend
+
+    def warm(self) -> threading.Thread:
+        """Load the model in the background; until it is in, questions get the rules' plan (counted, not waited)."""
+        self._warming = True
+
+        def load() -> None:
+            try:
+                self.backend
+            except Exception as exc:  # the rules keep answering; every plan says why
+                log.warning("the planner model did not load (%s: %s); planning with the rules", type(exc).__name__, exc)
+            finally:
+                self._ready.set()  # loaded or failed: plans stop waiting (a failure is re-reported per plan)
+
+        thread = threading.Thread(target=load, name="planner-load", daemon=True)
+        thread.start()
+        return thread
 
     def plan(self, question: str) -> Plan:
         t0 = self.clock()
         self.plans += 1
+        if self._warming and not self._ready.is_set():
+            return self._fall_back(question, "backend", "the planner model is still loading", None, t0)
         try:
             backend = self.backend
             with self._lock:
