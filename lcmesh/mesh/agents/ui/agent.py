@@ -129,7 +129,7 @@ class UiAgent(Agent):
                 "phraser_note": ctx.phraser_note}  # fmt: skip
 
     def _serve_data_tools(self, sources: ChatSources) -> None:
-        """The operator's data tools on ``tools/{name}``: the same registry the chat plans with, for anyone on the bus."""
+        """The operator's data tools on ``tools/{name}``: the registry the chat plans with, for anyone on the bus."""
         context = registry.ToolContext(system=sources.system, data=sources)
         for name in registry.served_tools(data=True):
 
