@@ -484,9 +484,13 @@ def plant_scalars(state: Any) -> dict[str, float]:
     return out
 
 
-def cooling_pue(scalars: dict[str, float]) -> float | None:
-    it = scalars["it_power_w"]
-    return (it + scalars["ct_fan_power_w"] + scalars["pump_power_w"]) / it if it > 0 else None
+def cooling_pue(it_w: float, fan_w: float, pump_w: float) -> float | None:
+    """(IT + tower fans + pumps) / IT; None with no IT load (the ratio means nothing then)."""
+    return (it_w + fan_w + pump_w) / it_w if it_w > 0 else None
+
+
+def _pue(scalars: dict[str, float]) -> float | None:
+    return cooling_pue(scalars["it_power_w"], scalars["ct_fan_power_w"], scalars["pump_power_w"])
 
 
 def in_band_pct(state: Any, low_c: float = BAND_C[0], high_c: float = BAND_C[1]) -> float:
@@ -502,7 +506,7 @@ def _plant_value(q: Quantity, state: Any) -> float | None:
     if q.key == "in_band":
         return in_band_pct(state)
     if q.key == "pue":
-        return cooling_pue(s)
+        return _pue(s)
     if q.key == "cooling_power":
         return (s["ct_fan_power_w"] + s["pump_power_w"]) / 1e3
     raw = _outputs(state, q.block)
@@ -580,7 +584,7 @@ def overview(req: OverviewRequest, ctx: Any) -> OverviewResponse:
     return OverviewResponse(step=state.step, time_s=state.time_s, hottest=hottest, in_band_pct=in_band_pct(state),
                             it_power_kw=s["it_power_w"] / 1e3, tower_power_kw=s["ct_fan_power_w"] / 1e3,
                             pump_power_kw=s["pump_power_w"] / 1e3, wet_bulb_c=s["wet_bulb_k"] - K0,
-                            pue=cooling_pue(s), controller=applied.source_controller if applied else None)  # fmt: skip
+                            pue=_pue(s), controller=applied.source_controller if applied else None)  # fmt: skip
 
 
 def history_stat(req: HistoryRequest, ctx: Any) -> HistoryResponse:
@@ -669,7 +673,7 @@ def energy_balance(req: EnergyRequest, ctx: Any) -> EnergyResponse:
     return EnergyResponse(step=state.step, it_power_kw=it / 1e3, cdu_heat_kw=s["cdu_heat_w"] / 1e3,
                           heat_rejected_kw=s["heat_rejected_w"] / 1e3, tower_power_kw=s["ct_fan_power_w"] / 1e3,
                           pump_power_kw=s["pump_power_w"] / 1e3,
-                          cooling_power_kw=(s["ct_fan_power_w"] + s["pump_power_w"]) / 1e3, pue=cooling_pue(s),
+                          cooling_power_kw=(s["ct_fan_power_w"] + s["pump_power_w"]) / 1e3, pue=_pue(s),
                           rejected_over_it_pct=s["heat_rejected_w"] / it * 100.0 if it > 0 else None)  # fmt: skip
 
 

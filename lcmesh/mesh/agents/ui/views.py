@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from lcmesh.mesh.tools import plant_data
 from lcmesh.mesh.messages import ActionModel, AppliedAction, PlantState, plant_state_to_observation
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription
 from lcmesh.twin.traces import SCENARIOS
@@ -103,8 +104,9 @@ def state_view(state: PlantState, system: SystemDescription, applied: AppliedAct
 
 
 def cooling_pue(it_w: float, fan_w: float, pump_w: float) -> float | None:
-    """(IT + tower fans + pumps) / IT, to 4 decimals; None with no IT load (the ratio means nothing then)."""
-    return round((it_w + fan_w + pump_w) / it_w, 4) if it_w > 0 else None
+    """The assistant's cooling PUE (plant_data.cooling_pue) to 4 decimals; None with no IT load."""
+    pue = plant_data.cooling_pue(it_w, fan_w, pump_w)
+    return None if pue is None else round(pue, 4)
 
 
 def wet_bulb_note(scenario: str, offset_k: float) -> str | None:

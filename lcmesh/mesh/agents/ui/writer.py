@@ -39,7 +39,7 @@ class Writer:
         name = f"{self.tool}_{self._n}"
         if isinstance(value, float):
             value = round(value, 4)
-        self.book.add(fact(name, value, _fact_unit(unit), text, TOOL_SOURCE, entity=entity, quantity=quantity,
+        self.book.add(fact(name, value, unit, text, TOOL_SOURCE, entity=entity, quantity=quantity,
                            tool=self.tool, **self.where, **ref), unsigned=unsigned)  # fmt: skip
         return "{" + name + "}"
 
@@ -86,10 +86,6 @@ class Writer:
 
     def say(self, template: str) -> str:
         return self.book.say(template)
-
-
-def _fact_unit(unit: str) -> str:
-    return {"": "", "%": "%", "fraction": "fraction"}.get(unit, unit)
 
 
 def _label(quantity: str) -> str:
