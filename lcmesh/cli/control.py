@@ -179,3 +179,33 @@ def bench_suite(
         console.print(result["regret_note"])
     result["plot"] = str(plot_pareto(result, plots / "suite_pareto.png"))
     write_bench(json_out, markdown, "suite", result, render=render_suite)
+
+
+@bench_app.command("ablation")
+def bench_ablation(
+    folder: Annotated[Path, typer.Option(help="folder of case{C}-seed{S}.json policies")] = Path(
+        "lcmesh/artifacts/ppo/frontier"
+    ),
+    system: Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")] = (
+        "lcopt-5"
+    ),
+    hours: Annotated[float, typer.Option(help="hours of each day", min=0.25, max=24.0)] = 24.0,
+    days: Annotated[Optional[str], typer.Option(help="comma-separated test-day labels (default: all)")] = None,
+    json_out: JsonOpt = None,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+) -> None:
+    """Every seed of every PPO case on the held-out days, mean ± std over seeds (lcmesh/bench/ablation.py, issue 13)."""
+    from lcmesh.bench.ablation import render_ablation, run_ablation
+    from lcmesh.bench.suite import TEST_DAYS, days_named
+    from lcmesh.cli.common import load_system_or_fail
+
+    load_system_or_fail(system)
+    if not folder.is_dir():
+        fail(f"`--folder` must be a folder of case{{C}}-seed{{S}}.json policies, got {folder}")
+    try:
+        chosen = TEST_DAYS if days is None else days_named([d.strip() for d in days.split(",") if d.strip()])
+        with stage_progress("ablation seeds on the held-out days") as on_progress:
+            result = run_ablation(folder, system, chosen, hours=hours, progress=on_progress)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    write_bench(json_out, markdown, "ablation", result, render=render_ablation)
