@@ -3,10 +3,14 @@
 - load: the model straight from the GGUF vs from the unpacked safetensors cache (adapter merged);
 - explanations: latency of short and detailed explanations of decisions spread over the Frontier
   day, and the pipeline's scores (LLM text, or the renderer where the LLM's text failed the checks);
-- control: latency of one batched lcopt-5 decision (5 cabinets, one generate call);
-- fidelity: action R^2 / MAE per head against the teacher on held-out decisions, parse failures;
-- closed loop: KPIs on the Frontier day (+15 K wet bulb) with the LLM deciding every k steps,
-  beside G36, the PPO teacher and the VIPER trees (LC-Opt Figure 10).
+  how many LLM texts are the rendering word for word (the template's), and how many carry a what-if
+  claim the rendering lacks that the judge passed (``lcmesh.llm.explainer.whatif_claims``);
+- control: latency of one batched lcopt-5 decision (5 cabinets and 2 towers, one generate call);
+- fidelity: action R^2 / MAE per head against the teacher on held-out decisions, the towers' approach
+  MAE, parse failures;
+- closed loop on the held-out suite (``lcmesh.bench.suite.TEST_DAYS``): on each day the busiest
+  ``hours`` (the window of highest mean load, picked from the trace alone), the LLM deciding every k
+  steps beside G36, the strong rule, the PPO teacher, the trees and the readable tree (LC-Opt Figure 10).
 """
 
 from __future__ import annotations
@@ -22,28 +26,33 @@ import numpy as np
 from lcmesh.bench.machine import machine_info
 
 EVAL_TRACE = "frontier-2024-04-07"
-WET_BULB_OFFSET_K = 15.0
+EVAL_SCENARIO = "frontier"
+HELDOUT_TRACE = "synthetic:1003@design-day"  # the teacher's decisions on a day no model trained on
+LOOP_CONTROLLERS = ("g36", "rule", "ppo", "tree", "readable", "llm")
 
 
 @dataclass
 class BenchLlmConfig:
     """Sample counts and the closed-loop window."""
 
-    hours: float = 2.0
-    period_steps: int = 4
+    hours: float = 1.0
+    period_steps: int = 8
     adapter: str = "default"
     heldout_samples: int = 100
     explain_per_level: int = 12
     control_repeats: int = 8
     teacher: str = "ppo"
-    system: str = "lcopt-5-paper"
+    system: str = "lcopt-5"
+    days: str = ""
+    """Comma-separated suite test days for the closed loop (empty: all)."""
 
     @classmethod
     def make(cls, *, quick: bool, **kw) -> "BenchLlmConfig":
         """The full benchmark, or with ``quick`` a smoke run (1 h loop, few samples)."""
         cfg = cls(**kw)
         if quick:
-            cfg.hours, cfg.heldout_samples, cfg.explain_per_level, cfg.control_repeats = min(cfg.hours, 1.0), 15, 2, 2
+            cfg.hours, cfg.heldout_samples, cfg.explain_per_level, cfg.control_repeats = min(cfg.hours, 0.25), 15, 2, 2
+            cfg.days = cfg.days or "frontier,hot-1033"
         return cfg
 
 
@@ -72,7 +81,7 @@ def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = 
     result["control_latency"] = _control_latency(cfg, system, backend)
     say("explanations over the evaluation day")
     result["explanations"] = _explanations(cfg, system, backend, say)
-    say("closed loop on the Frontier day")
+    say("closed loop on the held-out days")
     result["closed_loop"] = _closed_loop(cfg, system, backend, say)
     result["machine"]["load_avg_1m_at_end"] = os.getloadavg()[0]
     return result
@@ -82,12 +91,18 @@ def _fidelity(cfg: BenchLlmConfig, system, backend) -> dict:
     from lcmesh.distill.experience import collect_experience, resample
     from lcmesh.distill.llm import make_teacher, score_actions, step_view, teacher_targets
 
+    from lcmesh.distill.llm import score_towers, tower_samples, tower_view
+
     teacher = make_teacher(cfg.teacher, system)
-    held = collect_experience(teacher, system, ["synthetic:1003"], 960, wet_bulb_offset_k=WET_BULB_OFFSET_K)
+    held = collect_experience(teacher, system, [HELDOUT_TRACE], 960)
     idx = resample(held, cfg.heldout_samples, np.random.default_rng(1), "cabinet", uniform=True)
     views = [step_view(held, int(t), int(c)) for t, c in idx]
-    return {"trace": "synthetic:1003", "teacher": f"{teacher.name}:{teacher.version}",
-            **score_actions(backend, views, teacher_targets(held, idx))}  # fmt: skip
+    fan_w = system.towers.cell.fan_power_nominal_w
+    tower_idx = resample(held, max(cfg.heldout_samples // 2, 1), np.random.default_rng(2), "tower", uniform=True)
+    _, tower_y = tower_samples(held, tower_idx, fan_w)
+    towers = score_towers(backend, [tower_view(held, int(t), int(n), fan_w) for t, n in tower_idx], tower_y)
+    return {"trace": HELDOUT_TRACE, "teacher": f"{teacher.name}:{teacher.version}",
+            **score_actions(backend, views, teacher_targets(held, idx)), "towers": towers}  # fmt: skip
 
 
 def _eval_day_decisions(cfg: BenchLlmConfig, system, n: int):
@@ -95,9 +110,9 @@ def _eval_day_decisions(cfg: BenchLlmConfig, system, n: int):
     from lcmesh.distill.llm import make_teacher
     from lcmesh.twin.controllers import Observation
     from lcmesh.twin.plant import Plant
-    from lcmesh.twin.traces import load_trace, scenario_with_offset
+    from lcmesh.twin.traces import load_trace
 
-    trace = load_trace(EVAL_TRACE, system, scenario=scenario_with_offset("lcopt", WET_BULB_OFFSET_K))
+    trace = load_trace(EVAL_TRACE, system, scenario=EVAL_SCENARIO)
     picks = set(np.linspace(60, trace.n_steps - 1, n).astype(int).tolist())
     teacher, found, previous = make_teacher(cfg.teacher, system), [], None
     with Plant(system) as plant:
@@ -132,7 +147,8 @@ def _explanations(cfg: BenchLlmConfig, system, backend, say) -> dict:
             final = r.llm_scores if r.source == "llm" else rendered_scores
             rows.append({"seconds": seconds, "llm_seconds": r.seconds, "source": r.source, "reason": r.fallback_reason,
                          "new_tokens": r.new_tokens, "passes": passes, "llm": r.llm_scores, "final": final,
-                         "as_rendered": r.source == "llm" and r.text.strip() == rendered.strip()})  # fmt: skip
+                         "as_rendered": r.source == "llm" and r.text.strip() == rendered.strip(),
+                         "whatif_claims": r.whatif_claims, "text": r.text})  # fmt: skip
         secs = [row["seconds"] for row in rows]
         reasons = [row["reason"] for row in rows if row["reason"]]
         result[level] = {
@@ -140,6 +156,10 @@ def _explanations(cfg: BenchLlmConfig, system, backend, say) -> dict:
             "llm_seconds_median": statistics.median(row["llm_seconds"] for row in rows),
             "llm_used": sum(row["source"] == "llm" for row in rows),
             "llm_text_as_rendered": sum(row["as_rendered"] for row in rows),
+            "llm_with_whatif_claim": sum(bool(row["whatif_claims"]) for row in rows),
+            "whatif_claims": {k: sum(k in row["whatif_claims"] for row in rows)
+                              for k in sorted({c for row in rows for c in row["whatif_claims"]})},
+            "example": next((row["text"] for row in rows if row["whatif_claims"]), None),
             "forward_passes_median": (statistics.median(row["passes"] for row in rows)
                                       if all(row["passes"] is not None for row in rows) else None),
             "new_tokens_median": statistics.median(row["new_tokens"] for row in rows),
@@ -172,9 +192,9 @@ def _control_latency(cfg: BenchLlmConfig, system, backend) -> dict:
     from lcmesh.llm.controller import LlmController
     from lcmesh.twin.controllers import Observation
     from lcmesh.twin.plant import Plant
-    from lcmesh.twin.traces import load_trace, scenario_with_offset
+    from lcmesh.twin.traces import load_trace
 
-    trace = load_trace(EVAL_TRACE, system, scenario=scenario_with_offset("lcopt", WET_BULB_OFFSET_K), hours=1)
+    trace = load_trace(EVAL_TRACE, system, scenario=EVAL_SCENARIO, hours=1)
     controller = LlmController(system, backend=backend, period_steps=1)
     lat = []
     with Plant(system) as plant:
@@ -184,47 +204,80 @@ def _control_latency(cfg: BenchLlmConfig, system, backend) -> dict:
             obs = Observation(out, float(trace.wet_bulb_k[k]), trace.blade_power_w(k, out=power), k * trace.step_s)
             out = plant.step(power, obs.wet_bulb_k, controller.act(obs))
             lat.append(controller.stats["latency_s_last"])
-    return {"cabinets": system.cabinets.count, "decisions": len(lat), "seconds_median": statistics.median(lat),
+    return {"cabinets": system.cabinets.count, "towers": system.towers.count, "decisions": len(lat),
+            "seconds_median": statistics.median(lat),
             "seconds_max": max(lat), "fallbacks": controller.stats_snapshot()["fallbacks"]}  # fmt: skip
 
 
-def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
-    from lcmesh.distill.llm import make_teacher
+def busiest_window(trace, steps: int) -> int:
+    """The first step of the ``steps``-long window with the highest mean plant load (from the trace alone)."""
+    load = trace.cabinet_load_w.sum(axis=1)
+    if steps >= load.size:
+        return 0
+    window = np.convolve(load, np.ones(steps), mode="valid")
+    return int(np.argmax(window))
+
+
+def _loop_controller(name: str, system, backend, cfg: BenchLlmConfig):
+    from lcmesh.distill.trees import READABLE_TREES
     from lcmesh.llm.controller import LlmController
-    from lcmesh.twin.plant import Plant
-    from lcmesh.twin.run import run_twin
-    from lcmesh.twin.traces import load_trace, scenario_with_offset
+    from lcmesh.twin.controllers import make_controller
 
-    trace = load_trace(EVAL_TRACE, system, scenario=scenario_with_offset("lcopt", WET_BULB_OFFSET_K), hours=cfg.hours)
-    rows = {}
-    for name in ("g36", "ppo", "tree", "llm"):
-        try:
+    if name == "llm":
+        return LlmController(system, backend=backend, period_steps=cfg.period_steps)
+    if name == "readable":
+        return make_controller("tree", system, policy=str(READABLE_TREES))
+    return make_controller(name, system)
+
+
+def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
+    from lcmesh.bench.suite import TEST_DAYS, days_named, load_day, run_day
+
+    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()])
+    steps = max(int(round(cfg.hours * 240)), 1)
+    rows: dict[str, dict] = {name: {"days": {}} for name in LOOP_CONTROLLERS}
+    windows = {}
+    for i, day in enumerate(days):
+        full = load_day(day, system)
+        start = busiest_window(full, steps)
+        trace = full.slice(start, steps)
+        windows[day.label] = {"start_h": start * full.step_s / 3600.0, "hours": steps * full.step_s / 3600.0}
+        for name in LOOP_CONTROLLERS:
+            if "error" in rows[name]:
+                continue
+            say(f"closed loop {day.label} ({i + 1}/{len(days)}): {name}")
+            try:
+                controller = _loop_controller(name, system, backend, cfg)
+                r = run_day(system, trace, controller)
+            except Exception as exc:  # a controller not trained yet is reported, not fatal
+                rows[name] = {"error": f"{type(exc).__name__}: {exc}"}
+                continue
             if name == "llm":
-                controller = LlmController(system, backend=backend, period_steps=cfg.period_steps)
-            else:
-                controller = make_teacher(name, system)
-        except Exception as exc:  # a controller not trained yet is reported, not fatal
-            rows[name] = {"error": f"{type(exc).__name__}: {exc}"}
-            continue
-        with Plant(system) as plant:
-            t0 = time.perf_counter()
-            n = trace.n_steps
+                r["llm_stats"] = controller.stats_snapshot()
+            rows[name]["days"][day.label] = r
+    for name, row in rows.items():
+        if "error" not in row and row["days"]:
+            got = list(row["days"].values())
+            row["mean"] = {k: float(np.mean([d[k] for d in got])) for k in ("d_blade_pct", "cooling_kwh", "blade_max_c")}
+            row["std_d_blade"] = float(np.std([d["d_blade_pct"] for d in got], ddof=1)) if len(got) > 1 else 0.0
+            if name == "llm":
+                row["llm_stats"] = _sum_stats([d.pop("llm_stats") for d in got])
+    return {"days": windows, "period_steps": cfg.period_steps, "controllers": rows}
 
-            def on_step(k: int, name: str = name) -> None:
-                if k % 20 == 0:
-                    say(f"closed loop {name}: step {k + 1}/{n}")
 
-            run = run_twin(plant, trace, controller, on_step=on_step)
-            wall = time.perf_counter() - t0
-        k = run.kpi
-        rows[name] = {"d_blade_pct": k["d_blade_pct"], "ct_power_kw_avg": k["ct_power_kw_avg"],
-                      "it_cooling_kw_avg": k["it_cooling_kw_avg"], "blade_temp_mean_c": k["blade_temp_mean_c"],
-                      "blade_temp_max_c": k["blade_temp_max_c"], "cooling_power_kw_avg": k["cooling_power_kw_avg"],
-                      "wall_s": wall, "version": getattr(controller, "version", "?")}  # fmt: skip
-        if name == "llm":
-            rows[name]["llm_stats"] = controller.stats_snapshot()
-    return {"trace": f"{EVAL_TRACE} +{WET_BULB_OFFSET_K:g} K wet bulb, first {cfg.hours:g} h",
-            "period_steps": cfg.period_steps, "controllers": rows}  # fmt: skip
+def _sum_stats(stats: list[dict]) -> dict:
+    """The LLM controller's counters over the days."""
+    total: dict = {}
+    for s in stats:
+        for k in ("decisions", "cabinet_decisions", "llm_cabinet_actions", "tower_decisions", "llm_tower_actions",
+                  "fallbacks", "latency_s_total"):
+            total[k] = total.get(k, 0) + s.get(k, 0)
+        for key in ("fallback_reasons", "fallbacks_by_kind"):
+            for r, n in s.get(key, {}).items():
+                total.setdefault(key, {})[r] = total.setdefault(key, {}).get(r, 0) + n
+        total["fallback_controller"] = s.get("fallback_controller")
+    total["latency_s_mean"] = total.get("latency_s_total", 0.0) / max(total.get("decisions", 0), 1)
+    return total
 
 
 def _draft_note(e: dict) -> str:
@@ -261,7 +314,8 @@ def render_llm(r: dict) -> str:
           f"{ex[lvl]['llm_used']}{_draft_note(ex[lvl])}) | {ex[lvl]['seconds_median']:.1f} / "
           f"{ex[lvl]['seconds_max']:.1f} | <= {limit} |"
           for lvl, limit in (("short", 3), ("detailed", 10))),
-        f"| batched control decision, lcopt-5 ({ctl['cabinets']} cabinets), s (median / max of {ctl['decisions']}) | "
+        f"| batched control decision, {r['config']['system']} ({ctl['cabinets']} cabinets, {ctl.get('towers', 0)} towers), "
+        f"s (median / max of {ctl['decisions']}) | "
         f"{ctl['seconds_median']:.2f} / {ctl['seconds_max']:.2f} | <= 5 |",
         f"| CDU head R^2 vs teacher ({fid['teacher']}, {fid['parsed']} of {fid['n']} held-out decisions parsed) | "
         f"{f(fid.get('cdu_r2'))} (supply {f(fid.get('cdu_r2_per_dim', {}).get('supply_setpoint'))}, "
@@ -272,6 +326,10 @@ def render_llm(r: dict) -> str:
         f"{', '.join(f'{v:.3f}' for v in fid.get('valve_mae', []))} | |",
         f"| parse-failure rate (held-out) | {100 * fid['parse_failure_rate']:.1f} % {fid['failure_reasons'] or ''} | |",
     ]
+    towers = fid.get("towers") or {}
+    if towers:
+        lines.append(f"| tower approach MAE vs teacher, K ({towers['parsed']} of {towers['n']} parsed; exact "
+                     f"{100 * towers.get('approach_exact_share', 0):.0f} %) | {f(towers.get('approach_mae_k'), '.2f')} | |")
     for level in ("short", "detailed"):
         e = ex[level]
         p, q = e["pipeline_scores"], e["llm_scores"]
@@ -281,19 +339,33 @@ def render_llm(r: dict) -> str:
             f"({q['numeric_grounding']:.3f} / {q['coverage']:.3f} / {q['direction_consistency']:.3f}; LLM text used "
             f"{e['llm_used']} of {e['n']}) | >= 0.98 / 1.0 / >= 0.95 |"
         )
-    lines += ["", f"Closed loop, {cl['trace']}, LLM deciding every {cl['period_steps']} steps (Figure 10):", "",
-              "| controller | d_blade % | CT fan kW | blade mean °C | blade max °C | cooling kW | wall s |",
-              "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for level in ("short", "detailed"):
+        e = ex[level]
+        if "llm_with_whatif_claim" in e:
+            lines.append(f"| {level}: explanations with a verified what-if claim the rendering lacks (of {e['n']}; "
+                         f"claims {e['whatif_claims'] or 'none'}) | {e['llm_with_whatif_claim']} "
+                         f"({100 * e['llm_with_whatif_claim'] / max(e['n'], 1):.0f} %) | >= 50 % |")
+    labels = list(cl["days"])
+    lines += ["", f"Closed loop on the held-out suite: each day's busiest {next(iter(cl['days'].values()))['hours']:g} h "
+              f"(highest mean load; start hour per day below), the LLM deciding every {cl['period_steps']} steps "
+              "(Figure 10). D_blade % per day; mean over the days and cooling kWh per window:", "",
+              "| controller | mean D_blade % | mean cooling kWh | worst blade °C | " + " | ".join(labels) + " |",
+              "|---|---|---|---|" + "---|" * len(labels)]  # fmt: skip
     for name, row in cl["controllers"].items():
         if "error" in row:
-            lines.append(f"| {name} | not available: {row['error'][:80]} | | | | | |")
+            lines.append(f"| {name} | not available: {row['error'][:80]} |")
             continue
-        lines.append(f"| {name} | {row['d_blade_pct']:.2f} | {row['ct_power_kw_avg']:.1f} | "
-                     f"{row['blade_temp_mean_c']:.2f} | {row['blade_temp_max_c']:.2f} | "
-                     f"{row['cooling_power_kw_avg']:.1f} | {row['wall_s']:.0f} |")  # fmt: skip
+        if "mean" not in row:
+            continue
+        worst = max(d["blade_max_c"] for d in row["days"].values())
+        cells = " | ".join(f"{row['days'][d]['d_blade_pct']:.2f}" if d in row["days"] else "-" for d in labels)
+        lines.append(f"| {name} | {row['mean']['d_blade_pct']:.2f} +- {row['std_d_blade']:.2f} | "
+                     f"{row['mean']['cooling_kwh']:.0f} | {worst:.1f} | {cells} |")  # fmt: skip
+    lines += ["", "Window start hour per day: " + ", ".join(f"{d} {w['start_h']:.2f}" for d, w in cl["days"].items())]
     llm = cl["controllers"].get("llm", {}).get("llm_stats")
     if llm:
-        lines += ["", f"LLM controller: {llm['cabinet_decisions']} cabinet decisions, {llm['fallbacks']} fallbacks to "
-                      f"{llm['fallback_controller']} ({llm['fallback_reasons'] or 'none'}), mean decision "
+        lines += ["", f"LLM controller: {llm['cabinet_decisions']} cabinet and {llm.get('tower_decisions', 0)} tower "
+                      f"decisions; {llm['fallbacks']} answers rejected and served by {llm['fallback_controller']} "
+                      f"({llm.get('fallbacks_by_kind') or {}}; {llm['fallback_reasons'] or 'none'}), mean decision "
                       f"{llm['latency_s_mean']:.2f} s."]  # fmt: skip
     return "\n".join(lines)

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, progress_bar, write_bench
+from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, fail, progress_bar, write_bench
 from lcmesh.cli.control import dataclass_options
 
 
@@ -48,15 +48,24 @@ _register()
 def bench_llm(
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update the llm section of this BENCHMARKS.md")] = None,
-    quick: Annotated[bool, typer.Option(help="small sample counts and 1 h closed loop (smoke run)")] = False,
-    hours: Annotated[float, typer.Option(help="closed-loop hours of the Frontier day")] = 2.0,
-    period: Annotated[int, typer.Option(help="closed loop: the LLM decides every N steps")] = 4,
+    quick: Annotated[bool, typer.Option(help="small sample counts, 15 min on two days (smoke run)")] = False,
+    hours: Annotated[float, typer.Option(help="closed loop: the busiest hours of each held-out day", min=0.05,
+                                         max=24.0)] = 1.0,
+    period: Annotated[int, typer.Option(help="closed loop: the LLM decides every N steps", min=1)] = 8,
+    days: Annotated[str, typer.Option(help="closed loop: comma-separated suite test days (default: all)")] = "",
     adapter: Annotated[str, typer.Option(help="LoRA adapter folder, 'default' (packaged) or 'none'")] = "default",
 ) -> None:
     """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
 
-    cfg = BenchLlmConfig.make(quick=quick, hours=hours, period_steps=period, adapter=adapter)
+    if days:
+        from lcmesh.bench.suite import days_named
+
+        try:
+            days_named([d.strip() for d in days.split(",") if d.strip()])
+        except ValueError as exc:
+            fail(f"`--days`: {exc}")
+    cfg = BenchLlmConfig.make(quick=quick, hours=hours, period_steps=period, adapter=adapter, days=days)
     with progress_bar() as progress:
         task = progress.add_task("bench llm", total=None)
         result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg))

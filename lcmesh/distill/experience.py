@@ -24,7 +24,7 @@ from lcmesh.twin.traces import load_trace, scenario_with_offset
 
 OBS_KEYS = ("branch_temp_k", "branch_max_temp_k", "branch_power_w", "supply_temp_k", "secondary_flow_kg_s",
             "cabinet_dp_pa", "return_temp_k", "ct_leaving_temp_k", "cell_fan_power_w", "htw_supply_temp_k",
-            "applied_lw_setpoint_k")  # fmt: skip
+            "htw_return_temp_k", "applied_lw_setpoint_k")  # fmt: skip
 ACTION_KEYS = ("supply_temp_setpoint_k", "dp_setpoint_pa", "valve_fractions", "lw_setpoint_k")
 
 

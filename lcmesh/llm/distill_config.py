@@ -12,12 +12,15 @@ class LlmDistillConfig:
     """What to distill into SmolLM2-135M-Instruct, from which teacher, and how to fine-tune."""
 
     teacher: str = "ppo"
-    """Teacher controller: ppo (the shipped case-7 policy or --policy), g36, or tree."""
+    """Teacher controller: ppo (the shipped frontier-case7 policy or --policy), g36, or tree."""
     policy: str = ""
     """Teacher policy file for ppo / tree (empty: the shipped one)."""
-    system: str = "lcopt-5-paper"
+    system: str = "lcopt-5"
     train_seeds: str = "0-3"
     """Synthetic training traces the teacher is rolled over ('A-B' or a comma list)."""
+    scenarios: str = "frontier,design-day"
+    """Scenarios cycled over the training traces (e.g. 'frontier,design-day'; the held-out trace runs under the
+    first); empty: the lcopt scenario with ``wet_bulb_offset_k``."""
     steps_per_trace: int = 960
     """Teacher steps recorded per training trace (960 = 4 h of 15 s steps)."""
     heldout_seed: int = 1003
@@ -26,6 +29,11 @@ class LlmDistillConfig:
     """Held-out cabinet decisions the adapter is scored on after training."""
     samples: int = 1500
     """Action samples drawn from the experience by VIPER weight (with replacement)."""
+    tower_samples: int = 150
+    """Tower decisions (approach over the wet bulb) drawn from the experience by VIPER weight; 0: the LLM decides
+    no towers."""
+    whatif: bool = True
+    """Explanation targets add a WHAT IF section citing the toolbox's what-if facts (the rendering does not)."""
     uniform: bool = False
     """Draw action samples uniformly instead of by VIPER weight (the naive ablation)."""
     explain_samples: str = "short:20,detailed:6"
@@ -59,10 +67,24 @@ class LlmDistillConfig:
     def __post_init__(self) -> None:
         if self.teacher not in TEACHERS:
             raise ValueError(f"`teacher` must be one of {', '.join(TEACHERS)}, got {self.teacher!r}")
+        if self.tower_samples < 0:
+            raise ValueError(f"`tower_samples` must be >= 0, got {self.tower_samples}")
         for name in ("steps_per_trace", "samples", "heldout_samples", "explain_steps", "max_len"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
         self.explain_counts()
+
+    def trace_specs(self, seeds: list[int]) -> list[str]:
+        """Training trace specs, each ``synthetic:SEED`` or ``synthetic:SEED@SCENARIO`` (scenarios cycled)."""
+        names = [n.strip() for n in self.scenarios.split(",") if n.strip()]
+        if not names:
+            return [f"synthetic:{s}" for s in seeds]
+        return [f"synthetic:{s}@{names[i % len(names)]}" for i, s in enumerate(seeds)]
+
+    def heldout_spec(self) -> str:
+        """The held-out trace spec (under the first scenario when scenarios are given)."""
+        names = [n.strip() for n in self.scenarios.split(",") if n.strip()]
+        return f"synthetic:{self.heldout_seed}" + (f"@{names[0]}" if names else "")
 
     def explain_counts(self) -> dict[str, int]:
         """``'short:24,detailed:8'`` -> {'short': 24, 'detailed': 8}; '' or 'none' -> {}."""

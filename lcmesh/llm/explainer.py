@@ -1,7 +1,12 @@
 """LLM explanations of a cabinet decision, checked by the explanation evaluator, with a deterministic fallback.
 
-The toolbox computes the decision's facts (``cabinet_decision_facts``); the LLM writes the
-explanation from them (``lcmesh/prompts/controller_explain.md``: compact ``name = value`` lines);
+The toolbox computes the decision's facts (``cabinet_decision_facts``) and, beside them, what the
+renderer does not say (``decision_whatif_facts``: the hottest branch at the new and at the held supply
+setpoint, the CDU pump at the new and the held dp and their difference in kW, the input furthest from
+normal); the LLM writes the explanation from all of them (``lcmesh/prompts/controller_explain.md``:
+compact ``name = value`` lines), and the judge grounds its numbers against all of them. A text's
+*what-if claims* are the what-if facts it states, with their unit, that the rendering does not
+(``whatif_claims``); they count only in a text the judge passes.
 ``lcmesh explain-eval``'s scorer checks the text; an explanation below the thresholds (numeric
 grounding 0.98, coverage 1, direction consistency 0.95) or with missing sections is replaced by the
 deterministic rendering, and the reason is counted. The distilled model was trained to write the
@@ -28,7 +33,8 @@ from lcmesh.llm.budget import Clock
 from lcmesh.llm.io_format import load_template
 from lcmesh.mesh.tools.explain import explanation_record, render_explanation
 from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS, evaluate_record
-from lcmesh.mesh.tools.facts import Fact, cabinet_decision_facts
+from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
+from lcmesh.mesh.tools.facts import K0, Fact, cabinet_decision_facts, decision_whatif_facts
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
 
@@ -58,6 +64,35 @@ class ExplanationResult:
     new_tokens: int = 0
     fallback_reason: str | None = None
     flags: list = field(default_factory=list)
+    whatif_claims: list[str] = field(default_factory=list)  # what-if facts the LLM's text states and the rendering lacks
+    identical_to_rendering: bool = False
+
+
+# What a what-if fact's unit reads as in the judge's number interpretations: (quantity, value -> canonical SI)
+_CANONICAL = {"degC": ("temp_abs", lambda v: v + K0), "K": ("temp_delta", abs), "kW": ("power", lambda v: abs(v) * 1e3)}
+_CLAIM_TOL = {"temp_abs": 0.051, "temp_delta": 0.051, "power": 51.0}  # the facts' display precision (0.1 degC, kW)
+
+
+def _states(mentions, fact: Fact) -> bool:
+    q, to_si = _CANONICAL[fact.unit]
+    target = to_si(float(fact.value))
+    return any(m.unit and any(iq == q and abs(iv - target) <= max(_CLAIM_TOL[q], tol) for iq, iv, tol in m.interpretations)
+               for m in mentions)  # fmt: skip
+
+
+def whatif_claims(text: str, whatif_facts: list[Fact], rendered: str) -> list[str]:
+    """Names of the what-if facts ``text`` states with a unit (the input label with its value) and ``rendered`` does not."""
+    said, base = extract_numbers(text), extract_numbers(rendered)
+    by_name = {f.name: f for f in whatif_facts}
+    claims = []
+    for f in whatif_facts:
+        if f.unit not in _CANONICAL or not isinstance(f.value, (int, float)):
+            continue
+        if f.name == "top_input_value" and str(by_name.get("top_input", f).value).lower() not in text.lower():
+            continue
+        if _states(said, f) and not _states(base, f):
+            claims.append(f.name)
+    return claims
 
 
 def explain_messages(facts: list[Fact], level: str) -> list[dict[str, str]]:
@@ -80,11 +115,14 @@ class LlmExplainer:
         *,
         thresholds: ExplainThresholds = ExplainThresholds(),
         use_draft: bool = True,
+        whatif: bool = True,
         time_budget_s: dict[str, float] | None = None,
         clock: Clock | None = None,
     ):
-        """``clock`` times the explanations; by default the backend's, so one injected clock drives both."""
+        """``clock`` times the explanations; by default the backend's, so one injected clock drives both.
+        ``whatif``: give the LLM the what-if facts too (the judge then grounds them)."""
         self.system, self.backend, self.thresholds, self.use_draft = system, backend, thresholds, use_draft
+        self.whatif = whatif
         self.clock = clock or getattr(backend, "clock", time.monotonic)
         self.time_budget_s = {**TIME_BUDGET_S, **(time_budget_s or {})}
         self.stats: Counter = Counter()
@@ -104,9 +142,10 @@ class LlmExplainer:
             raise ValueError(f"`level` must be one of {', '.join(MAX_NEW_TOKENS)}, got {level!r}")
         facts = cabinet_decision_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet)
         rendered = render_explanation(facts, level)
+        extra = decision_whatif_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet) if self.whatif else []
         t0 = self.clock()
         try:
-            gen = self.backend.chat([explain_messages(facts, level)], max_new_tokens=MAX_NEW_TOKENS[level],
+            gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
                                     drafts=[rendered] if self.use_draft else None,
                                     time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
             text, n_new = gen.text.strip() + "\n", gen.new_tokens
@@ -114,7 +153,7 @@ class LlmExplainer:
         except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
             text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
         seconds = self.clock() - t0
-        record = explanation_record(out, action, facts, text, cabinet=cabinet, record_id=record_id,
+        record = explanation_record(out, action, facts + extra, text, cabinet=cabinet, record_id=record_id,
                                     previous_action=previous_action, wet_bulb_k=wet_bulb_k, level=level)  # fmt: skip
         item = evaluate_record(record)
         scores = {k: float(item[k]) for k in ("numeric_grounding", "coverage", "direction_consistency")}
@@ -125,7 +164,11 @@ class LlmExplainer:
         self.stats["explanations"] += 1
         if reason is None:
             self.stats["llm"] += 1
-            return ExplanationResult(text, "llm", level, scores, seconds, n_new, None, item["flags"])
+            claims = whatif_claims(text, extra, rendered)
+            same = text.strip() == rendered.strip()
+            self.stats["llm_with_whatif_claim"] += bool(claims)
+            self.stats["llm_identical_to_rendering"] += same
+            return ExplanationResult(text, "llm", level, scores, seconds, n_new, None, item["flags"], claims, same)
         self.stats["renderer"] += 1
         self.stats[f"fallback_{reason}"] += 1
         return ExplanationResult(rendered, "renderer", level, scores, seconds, n_new, reason, item["flags"])

@@ -1,4 +1,4 @@
-"""The controller's text protocol: one cabinet's observation as a prompt, its CDU action as strict JSON.
+"""The controller's text protocol: one cabinet's or tower's observation as a prompt, its action as strict JSON.
 
 The prompt (``lcmesh/prompts/controller_action.md``) shows what the distilled policies see (the
 cabinet rows of ``lcmesh.distill.features``) in display units: per branch its mean and hottest
@@ -7,6 +7,12 @@ and the wet bulb. The answer is one JSON object, ``{"supply_c": 27.35, "dp_psi":
 [0.4, 0.33, 0.27]}``, parsed strictly: any other text, a missing or extra key, a non-finite number,
 a setpoint outside 20-40 degC / 25-38 psi, a negative valve, the wrong count or a split not summing
 to 1 within ``VALVE_SUM_TOLERANCE`` is rejected with a reason (the controller then falls back).
+
+A cooling tower gets its own prompt (``controller_tower.md``: its cells' fan power, its and all towers'
+leaving water, the hot-water return, the wet bulb, its present approach, the hottest blade) and answers
+``{"approach_k": 4.0}``, the leaving-water setpoint over the wet bulb, within ``APPROACH_RANGE_K`` (the
+learned policies' nine levels span it); the setpoint is the wet bulb plus that approach, never below the
+tower's minimum approach.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ SUPPLY_RANGE_C = (20.0, 40.0)
 DP_RANGE_PSI = (25.0, 38.0)
 VALVE_SUM_TOLERANCE = 0.05
 ANSWER_STOP = "}"
+APPROACH_RANGE_K = (1.5, 8.0)  # lcmesh.distill.features.APPROACH_LEVELS_K, first and last
 REASONS = ("empty", "not_json", "schema", "out_of_bounds", "valves_count", "valves_negative", "valves_sum", "backend",
            "timeout")  # fmt: skip
 
@@ -46,6 +53,27 @@ class CabinetView:
 
 
 @dataclass(frozen=True)
+class TowerView:
+    """What the tower prompt shows of one cooling tower, display units (degC, K, % of nominal fan power)."""
+
+    tower: int  # 1-based, as the prompt says it
+    fan_pct: tuple[float, ...]
+    leaving_c: float
+    mean_leaving_c: float
+    htw_return_c: float
+    wet_bulb_c: float
+    approach_k: float
+    hottest_c: float
+
+
+@dataclass(frozen=True)
+class TowerDecision:
+    """A parsed, in-bounds tower answer: the approach over the wet bulb, K."""
+
+    approach_k: float
+
+
+@dataclass(frozen=True)
 class CabinetDecision:
     """A parsed, in-bounds answer in SI units; ``valves`` normalized to sum to exactly 1."""
 
@@ -60,6 +88,12 @@ class ParseFailure:
 
     reason: str
     detail: str
+
+
+class _TowerAnswer(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    approach_k: float = Field(ge=APPROACH_RANGE_K[0], le=APPROACH_RANGE_K[1])
 
 
 class _Answer(BaseModel):
@@ -85,6 +119,59 @@ def cabinet_views(
                     float(supply[c]), htw, wb)  # fmt: skip
         for c in range(temp.shape[0])
     ]
+
+
+def tower_views(out: Mapping[str, np.ndarray], wet_bulb_k: float, fan_nominal_w: float) -> list[TowerView]:
+    """Views of all towers from plant outputs (``Plant.out`` or an experience step)."""
+    leaving = np.asarray(out["ct_leaving_temp_k"], dtype=float).reshape(-1) - K0
+    n = leaving.size
+    fans = 100.0 * np.asarray(out["cell_fan_power_w"], dtype=float).reshape(n, -1) / fan_nominal_w
+    approach = np.asarray(out["applied_lw_setpoint_k"], dtype=float).reshape(n) - wet_bulb_k
+    hottest = float(np.max(out["branch_max_temp_k"])) - K0
+    ret = float(np.mean(out["htw_return_temp_k"])) - K0
+    return [TowerView(t + 1, tuple(fans[t].tolist()), float(leaving[t]), float(leaving.mean()), ret,
+                      float(wet_bulb_k) - K0, float(approach[t]), hottest) for t in range(n)]  # fmt: skip
+
+
+def tower_messages(view: TowerView) -> list[dict[str, str]]:
+    """Chat messages asking for one tower's approach."""
+    system, user = load_template("controller_tower")
+    values = {"tower": str(view.tower), "fans": "/".join(f"{f:.0f}" for f in view.fan_pct),
+              "leaving_c": f"{view.leaving_c:.1f}", "mean_leaving_c": f"{view.mean_leaving_c:.1f}",
+              "htw_return_c": f"{view.htw_return_c:.1f}", "wet_bulb_c": f"{view.wet_bulb_c:.1f}",
+              "approach_k": f"{view.approach_k:.1f}", "hottest_c": f"{view.hottest_c:.1f}"}  # fmt: skip
+    return [
+        {"role": "system", "content": Template(system).substitute(values)},
+        {"role": "user", "content": Template(user).substitute(values)},
+    ]
+
+
+def tower_answer_text(approach_k: float) -> str:
+    """The training target / expected answer for a tower's approach."""
+    return f'{{"approach_k":{approach_k:.1f}}}'
+
+
+def parse_tower_answer(text: str) -> TowerDecision | ParseFailure:
+    """Strictly parse one tower answer; a failure says why (never raises)."""
+    body = (text or "").strip()
+    if not body:
+        return ParseFailure("empty", "the answer is empty")
+    try:
+        data = json.loads(body, parse_constant=_reject_constant)
+    except ValueError as exc:
+        return ParseFailure("not_json", f"the answer is not one JSON object ({exc}): {body[:80]!r}")
+    if not isinstance(data, dict):
+        return ParseFailure("not_json", f"the answer must be a JSON object, got {type(data).__name__}")
+    try:
+        answer = _TowerAnswer.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        if err["type"] in ("greater_than_equal", "less_than_equal"):
+            lo, hi = APPROACH_RANGE_K
+            return ParseFailure("out_of_bounds", f"`approach_k` must be in {lo}..{hi}, got {err['input']}")
+        field = ".".join(str(p) for p in err["loc"]) or "answer"
+        return ParseFailure("schema", f"`{field}`: {err['msg']}")
+    return TowerDecision(answer.approach_k)
 
 
 @lru_cache(maxsize=None)

@@ -10,22 +10,27 @@ def _result() -> dict:
     scores = {"numeric_grounding": 1.0, "coverage": 1.0, "direction_consistency": 1.0}
     expl = {"n": 2, "seconds_median": 2.5, "seconds_max": 2.9, "llm_used": 1, "fallback_reasons": {"coverage": 1},
             "llm_scores": scores, "pipeline_scores": scores}  # fmt: skip
-    row = {"d_blade_pct": 90.0, "ct_power_kw_avg": 30.0, "it_cooling_kw_avg": 1000.0, "blade_temp_mean_c": 33.0,
-           "blade_temp_max_c": 39.0, "cooling_power_kw_avg": 80.0, "wall_s": 1.0, "version": "1"}  # fmt: skip
+    expl = {**expl, "llm_with_whatif_claim": 1, "whatif_claims": {"hottest_branch_if_held": 1}}
+    day = {"d_blade_pct": 90.0, "cooling_kwh": 120.0, "blade_max_c": 39.0}
+    row = {"days": {"frontier": day, "hot-1033": {**day, "d_blade_pct": 80.0}},
+           "mean": {"d_blade_pct": 85.0, "cooling_kwh": 120.0, "blade_max_c": 39.0}, "std_d_blade": 7.07}
     return {
         "machine": {"cpu": "cpu", "logical_cpus": 2, "commit": "abc", "date": "today", "load_avg_1m_at_start": 1.0,
                     "load_avg_1m_at_end": 2.0},
-        "config": {"hours": 24.0, "period_steps": 8},
+        "config": {"hours": 24.0, "period_steps": 8, "system": "lcopt-5"},
         "load": {"gguf_s": 15.0, "safetensors_cache_s": 0.7, "speedup": 21.0, "model_id": "m+a"},
         "fidelity": {"teacher": "ppo:case7", "n": 10, "parsed": 9, "parse_failure_rate": 0.1,
                      "failure_reasons": {"not_json": 1}, "cdu_r2": 0.91, "valve_r2": 0.8, "valve_mae": [0.1, 0.2, 0.1],
                      "cdu_r2_per_dim": {"supply_setpoint": 0.9, "dp_setpoint": 0.92},
                      "cdu_mae": {"supply_setpoint_c": 0.1, "dp_psi": 0.5}},
-        "control_latency": {"cabinets": 5, "decisions": 3, "seconds_median": 2.0, "seconds_max": 2.2, "fallbacks": 0},
+        "control_latency": {"cabinets": 5, "towers": 2, "decisions": 3, "seconds_median": 2.0, "seconds_max": 2.2,
+                            "fallbacks": 0},
         "explanations": {"short": expl, "detailed": expl},
-        "closed_loop": {"trace": "day", "period_steps": 4,
+        "closed_loop": {"days": {"frontier": {"start_h": 5.5, "hours": 1.0}, "hot-1033": {"start_h": 14.0, "hours": 1.0}},
+                        "period_steps": 4,
                         "controllers": {"g36": row, "tree": {"error": "FileNotFoundError: no trees"},
-                                        "llm": {**row, "llm_stats": {"cabinet_decisions": 5, "fallbacks": 1,
+                                        "llm": {**row, "llm_stats": {"cabinet_decisions": 5, "tower_decisions": 2,
+                                                "fallbacks": 1, "fallbacks_by_kind": {"tower": 1},
                                                 "fallback_controller": "ppo", "fallback_reasons": {"not_json": 1},
                                                 "latency_s_mean": 2.0}}}},
     }  # fmt: skip
@@ -33,8 +38,10 @@ def _result() -> dict:
 
 def test_section_has_the_targets_and_the_figure_10_table(tmp_path):
     text = render_llm(_result())
-    for piece in ("<= 3", "<= 10", "<= 5", ">= 0.9", "0.910", "| g36 | 90.00", "| tree | not available",
-                  "1 fallbacks to ppo", "15.0 vs 0.70", "--hours 24 --period 8"):
+    for piece in ("<= 3", "<= 10", "<= 5", ">= 0.9", "0.910", "| g36 | 85.00 +- 7.07 | 120 | 39.0 | 90.00 | 80.00 |",
+                  "| tree | not available", "1 answers rejected and served by ppo ({'tower': 1}", "15.0 vs 0.70",
+                  "--hours 24 --period 8", "5 cabinets, 2 towers", "what-if claim the rendering lacks (of 2",
+                  "frontier 5.50, hot-1033 14.00"):
         assert piece in text, piece
     md = tmp_path / "BENCHMARKS.md"
     md.write_text("# Benchmarks\n\n<!-- bench:twin:start -->\nkeep\n<!-- bench:twin:end -->\n")

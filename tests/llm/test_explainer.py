@@ -115,3 +115,59 @@ def test_draft_verified_decoding_does_not_start_a_pass_that_would_end_late(decis
     assert r.fallback_reason == "timeout" and r.new_tokens > 0
     assert clock.passes == backend.last_forward_passes == 2  # a third pass would have ended at 0.6 s
     assert r.seconds == clock.now <= 0.5
+
+
+def _whatif(decision, lcopt5, cabinet=1):
+    from lcmesh.mesh.tools.facts import decision_whatif_facts
+
+    out, action, previous = decision
+    facts = cabinet_decision_facts(lcopt5, out, action, previous, 291.15, cabinet)
+    return facts, decision_whatif_facts(lcopt5, out, action, previous, 291.15, cabinet)
+
+
+def test_the_llm_gets_the_whatif_facts_and_a_text_stating_them_counts_its_claims(decision, lcopt5):
+    from lcmesh.mesh.tools.explain import render_whatif
+
+    out, action, previous = decision
+    facts, extra = _whatif(decision, lcopt5)
+    names = {f.name for f in extra}
+    assert {"hottest_branch_expected", "hottest_branch_if_held", "pump_power_expected", "top_input"} <= names
+    text = render_explanation(facts, "short") + "\n" + render_whatif(extra)
+    backend = EchoBackend(text)
+    explainer = LlmExplainer(lcopt5, backend)
+    r = explainer.explain(out, action, previous, 291.15, 1, "short")
+    user = backend.calls[0][0][0][1]["content"]
+    assert "hottest_branch_if_held = " in user and "top_input = " in user
+    assert r.source == "llm" and not r.identical_to_rendering
+    assert "hottest_branch_expected" in r.whatif_claims
+    assert explainer.stats["llm_with_whatif_claim"] == 1 and explainer.stats["llm_identical_to_rendering"] == 0
+    same = LlmExplainer(lcopt5, EchoBackend()).explain(out, action, previous, 291.15, 1, "short")  # the draft only
+    assert same.identical_to_rendering and same.whatif_claims == []
+
+
+def test_a_wrong_whatif_number_is_caught_by_the_judge(decision, lcopt5):
+    out, action, previous = decision
+    facts, extra = _whatif(decision, lcopt5)
+    held = next(f for f in extra if f.name == "hottest_branch_if_held")
+    wrong = float(held.value) + 7.3
+    text = (render_explanation(facts, "short") + f"\n## WHAT IF\n\nHolding the previous setpoint would leave the hottest "
+            f"branch near {wrong:.1f} °C.\n")  # fmt: skip
+    r = LlmExplainer(lcopt5, EchoBackend(text)).explain(out, action, previous, 291.15, 1, "short")
+    assert r.source == "renderer" and r.fallback_reason == "numeric_grounding"
+    assert r.whatif_claims == []
+
+
+def test_whatif_estimates_follow_the_toolbox_relations(decision, lcopt5):
+    from lcmesh.mesh.tools.facts import K0, facts_by_name
+
+    out, action, previous = decision
+    _, extra = _whatif(decision, lcopt5, cabinet=0)
+    f = facts_by_name(extra)
+    rise = float(out["branch_max_temp_k"][0].max() - out["supply_temp_k"][0])
+    assert f["hottest_branch_expected"].value == pytest.approx(action.supply_temp_setpoint_k[0] - K0 + rise, abs=2e-3)
+    dp_ratio = action.dp_setpoint_pa[0] / out["cabinet_dp_pa"][0]
+    pump_kw = out["cdu_pump_power_w"][0] / 1e3
+    assert f["pump_power_expected"].value == pytest.approx(pump_kw * dp_ratio**1.5, abs=2e-3)  # power ~ dp^1.5
+    assert f["dp_tradeoff_pump_power"].value == pytest.approx(
+        f["pump_power_expected"].value - f["pump_power_if_dp_held"].value, abs=2e-3)
+    assert f["top_input"].value in ("hottest branch temperature", "cabinet load", "wet bulb")

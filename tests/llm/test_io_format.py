@@ -82,3 +82,20 @@ def test_views_come_from_plant_outputs(plant, lcopt5):
     assert views[2].branch_power_kw == (6.0, 7.0, 8.0)
     assert views[0].wet_bulb_c == pytest.approx(17.0)
     assert views[1].branch_temp_c[0] == pytest.approx(out["branch_temp_k"][1, 0] - 273.15)
+
+
+def test_tower_prompt_shows_the_tower_from_1_and_its_answer_parses_strictly():
+    from lcmesh.llm.io_format import TowerDecision, parse_tower_answer, tower_answer_text, tower_messages, tower_views
+
+    out = {"ct_leaving_temp_k": np.array([297.15, 299.15]), "cell_fan_power_w": np.array([[30e3, 0.0], [60e3, 60e3]]),
+           "applied_lw_setpoint_k": np.array([296.15, 296.15]), "branch_max_temp_k": np.array([[310.15, 311.65]]),
+           "htw_return_temp_k": np.array([303.15])}  # fmt: skip
+    views = tower_views(out, 291.15, fan_nominal_w=60e3)
+    assert [v.tower for v in views] == [1, 2]
+    user = tower_messages(views[1])[1]["content"]
+    assert "tower 2: fans 100/100 %" in user and "approach now 5.0 K" in user and "hottest blade 38.5" in user
+    assert parse_tower_answer(tower_answer_text(3.5)) == TowerDecision(3.5)
+    for bad, reason in (("", "empty"), ("approach 4", "not_json"), ("[4]", "not_json"), ('{"approach_k": 8.5}', "out_of_bounds"),
+                        ('{"approach_k": 4, "x": 1}', "schema"), ('{"approach_k": NaN}', "not_json")):  # fmt: skip
+        failure = parse_tower_answer(bad)
+        assert failure.reason == reason, (bad, failure)

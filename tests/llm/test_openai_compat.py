@@ -74,8 +74,8 @@ def test_controller_over_http_decides_every_cabinet(client, plant, lcopt5):
     out = plant.reset()
     action = ctl.act(Observation(out, 291.15, np.full(lcopt5.n_blade_groups, 60e3), 0.0))
     s = ctl.stats_snapshot()
-    assert s["cabinet_decisions"] == 5
-    assert s["llm_cabinet_actions"] + s["fallbacks"] == 5
+    assert (s["cabinet_decisions"], s["tower_decisions"]) == (5, 2)
+    assert s["llm_cabinet_actions"] + s["llm_tower_actions"] + s["fallbacks"] == 7
     assert not {"backend", "timeout"} & set(s["fallback_reasons"])  # the endpoint answered; only parsing can reject
     assert np.isfinite(action.supply_temp_setpoint_k).all()
 

@@ -73,6 +73,46 @@ def render_explanation(facts: list[Fact], level: Level = "short") -> str:
     return "\n\n".join(f"## {title}\n\n{body}" for title, body in sections) + "\n"
 
 
+WHATIF_TITLE = "WHAT IF"
+# Phrasings of the what-if section; training targets draw one per sample so the model learns the claims, not a line.
+_EXPECTED = ("At the new supply setpoint the hottest branch should settle near {new}",
+             "Once the supply reaches its new setpoint, the hottest branch should sit near {new}",
+             "With this supply setpoint the hottest branch is expected near {new}")  # fmt: skip
+_HELD = ("; holding the previous setpoint would leave it near {held}", "; had the setpoint been held it would stay near {held}")
+_TRADEOFF = ("Trade-off: this dp setpoint {verb} {kw} of pump power ({new} against {held} had dp been held)",
+             "The dp decision {verb} {kw} at the CDU pump: {new} now against {held} at the previous dp")  # fmt: skip
+_PUMP = ("At this dp setpoint the CDU pump should draw about {new}", "The CDU pump should draw about {new} at this dp")
+_TOP = ("The input furthest from normal is the {top}, {value}", "Furthest from normal among the inputs: the {top}, {value}")
+
+
+def render_whatif(facts: list[Fact], variant: int = 0) -> str:
+    """A ``WHAT IF`` section citing the what-if facts (``decision_whatif_facts``): the estimates for the action not
+    taken, the dp trade-off in kW and the input furthest from normal. Empty when no such fact is given.
+
+    The renderer never writes it; it is what an LLM explanation may add (and the judge verifies), and the LLM's
+    training targets use it with ``variant`` picking the phrasing.
+    """
+    f = _Facts(facts)
+    pick = lambda options: options[variant % len(options)]  # noqa: E731
+    sentences = []
+    if "hottest_branch_expected" in f:
+        text = pick(_EXPECTED).format(new=f.d("hottest_branch_expected"))
+        if "hottest_branch_if_held" in f:
+            text += pick(_HELD).format(held=f.d("hottest_branch_if_held"))
+        sentences.append(text + ".")
+    if "dp_tradeoff_pump_power" in f and abs(float(f.v("dp_tradeoff_pump_power"))) >= 0.05:
+        verb = "costs" if float(f.v("dp_tradeoff_pump_power")) > 0 else "saves"
+        sentences.append(pick(_TRADEOFF).format(verb=verb, kw=f.d("dp_tradeoff_pump_power"),
+                                                new=f.d("pump_power_expected"), held=f.d("pump_power_if_dp_held")) + ".")
+    elif "pump_power_expected" in f:
+        sentences.append(pick(_PUMP).format(new=f.d("pump_power_expected")) + ".")
+    if "top_input" in f:
+        sentences.append(pick(_TOP).format(top=f.v("top_input"), value=f.d("top_input_value")) + ".")
+    if not sentences:
+        return ""
+    return f"## {WHATIF_TITLE}\n\n" + " ".join(sentences) + "\n"
+
+
 # --- sentences ----------------------------------------------------------------------------------
 
 

@@ -456,3 +456,81 @@ def _ranks(x: list[float]) -> list[float]:
             ranks[order[k]] = (i + j) / 2.0
         i = j + 1
     return ranks
+
+
+# --- what the template does not say: what-ifs, the trade-off in kW, the input furthest from normal ----------------
+WHATIF_FACTS = ("hottest_branch_expected", "hottest_branch_if_held", "pump_power_expected", "pump_power_if_dp_held",
+                "dp_tradeoff_pump_power", "top_input", "top_input_value")  # fmt: skip
+# The learned policies' own input scaling (lcmesh.distill.features): (value - centre) / scale.
+_INPUT_SCALES = {"hottest branch temperature": (35.0, 5.0), "cabinet load": (1.0, 1.0),  # load per design
+                 "wet bulb": (20.0, 10.0)}  # fmt: skip
+
+
+def decision_whatif_facts(
+    system: SystemDescription,
+    out: Mapping[str, np.ndarray],
+    action: PlantAction,
+    previous_action: PlantAction | None,
+    wet_bulb_k: float,
+    cabinet: int,
+) -> list[Fact]:
+    """Toolbox estimates beside a cabinet decision that the renderer does not state (LLM explanations may cite them).
+
+    - ``hottest_branch_expected`` / ``hottest_branch_if_held``: the hottest branch once the supply reaches the new
+      setpoint, and had the previous setpoint been held; the branch keeps its present rise over the supply (same
+      flow and heat), so it moves with the supply one to one.
+    - ``pump_power_expected`` / ``pump_power_if_dp_held`` and their difference ``dp_tradeoff_pump_power``: the CDU
+      pump at the new and at the previous dp setpoint by the affinity laws on a fixed system curve (dp ~ n^2,
+      power ~ n^3, so power ~ dp^1.5) from the measured dp and pump power.
+    - ``top_input``: of the hottest branch, the cabinet load and the wet bulb, the one furthest from its normal
+      value in the learned policies' input scaling (load per design load), with ``top_input_value`` in its unit.
+    """
+    from lcmesh.mesh.tools.thermo import pump_affinity
+
+    c = cabinet
+    hottest_c = float(np.max(out["branch_max_temp_k"][c] if "branch_max_temp_k" in out else out["branch_temp_k"][c])) - K0
+    supply = _get(out, "supply_temp_k", c)
+    facts: list[Fact] = []
+    if supply is not None:
+        rise = hottest_c - (supply - K0)
+        new_c = float(action.supply_temp_setpoint_k[c]) - K0 + rise
+        facts.append(_fact(name="hottest_branch_expected", value=round(new_c, 3), unit="degC", kind="derived",
+                           text=f"at the new supply setpoint the hottest branch settles near {format_value(new_c, 'degC')}"))
+        if previous_action is not None:
+            held_c = float(previous_action.supply_temp_setpoint_k[c]) - K0 + rise
+            facts.append(_fact(name="hottest_branch_if_held", value=round(held_c, 3), unit="degC", kind="derived",
+                               text=f"holding the previous supply setpoint would leave it near "
+                                    f"{format_value(held_c, 'degC')}"))  # fmt: skip
+    dp = _get(out, "cabinet_dp_pa", c)
+    pump = out.get("cdu_pump_power_w")
+    if dp is not None and dp > 0 and pump is not None:
+        pump_w = float(np.asarray(pump).reshape(-1)[c])
+
+        def at(dp_to: float) -> float:
+            return pump_affinity(1.0, math.sqrt(max(dp_to, 0.0) / dp), 1.0, dp, pump_w).power_w / 1e3
+
+        new_kw = at(float(action.dp_setpoint_pa[c]))
+        facts.append(_fact(name="pump_power_expected", value=round(new_kw, 3), unit="kW", kind="derived",
+                           text=f"at the new dp setpoint the CDU pump would draw {format_value(new_kw, 'kW')}"))
+        if previous_action is not None:
+            held_kw = at(float(previous_action.dp_setpoint_pa[c]))
+            facts += [
+                _fact(name="pump_power_if_dp_held", value=round(held_kw, 3), unit="kW", kind="derived",
+                      text=f"holding the previous dp setpoint, {format_value(held_kw, 'kW')}"),
+                _fact(name="dp_tradeoff_pump_power", value=round(new_kw - held_kw, 3), unit="kW", kind="change",
+                      text=f"the dp decision costs {format_value(new_kw - held_kw, 'kW')} of pump power"),
+            ]  # fmt: skip
+    load_kw = float(np.sum(out["branch_power_w"][c])) / 1e3
+    inputs = {"hottest branch temperature": (hottest_c, "degC"), "cabinet load": (load_kw, "kW"),
+              "wet bulb": (wet_bulb_k - K0, "degC")}  # fmt: skip
+    scaled = {"hottest branch temperature": hottest_c, "cabinet load": load_kw * 1e3 / system.cabinets.design_heat_w,
+              "wet bulb": wet_bulb_k - K0}  # fmt: skip
+    z = {name: abs(scaled[name] - _INPUT_SCALES[name][0]) / _INPUT_SCALES[name][1] for name in inputs}
+    top = max(z, key=z.get)
+    value, unit = inputs[top]
+    facts += [
+        _fact(name="top_input", value=top, kind="label", text=f"the input furthest from normal is the {top}"),
+        _fact(name="top_input_value", value=round(value, 3), unit=unit, kind="observation",
+              text=f"{top} {format_value(value, unit)}"),
+    ]
+    return facts
