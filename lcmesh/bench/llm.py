@@ -219,14 +219,11 @@ def busiest_window(trace, steps: int) -> int:
 
 
 def _loop_controller(name: str, system, backend, cfg: BenchLlmConfig):
-    from lcmesh.distill.trees import READABLE_TREES
     from lcmesh.llm.controller import LlmController
     from lcmesh.twin.controllers import make_controller
 
     if name == "llm":
         return LlmController(system, backend=backend, period_steps=cfg.period_steps)
-    if name == "readable":
-        return make_controller("tree", system, policy=str(READABLE_TREES))
     return make_controller(name, system)
 
 

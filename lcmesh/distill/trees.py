@@ -30,7 +30,7 @@ PAPER_TREES = ARTIFACTS / "trees" / "case7.json"  # from the paper-plant case-7 
 # From the real-load plant's case-7 policy: of its VIPER and naive trees, the naive ones scored higher on the
 # validation days (99.90 against 99.87 % in band at the same energy; docs/controllers.md).
 DEFAULT_TREES = ARTIFACTS / "trees" / "frontier-case7-naive.json"
-READABLE_TREES = ARTIFACTS / "trees" / "frontier-case7-readable.json"  # depth <= 8, rules on a page
+READABLE_TREES = ARTIFACTS / "trees" / "frontier-case7-readable-naive.json"  # depth <= 8, 32 leaves a head
 TREE_FORMAT = "lcmesh-trees/1"
 
 
@@ -242,4 +242,13 @@ class TreeController:
         return action
 
 
-__all__ = ["APPROACH_LEVELS_K", "Tree", "TreeController", "load_trees", "output_in_units", "rules_text", "save_trees", "tree_rules"]
+class ReadableTreeController(TreeController):
+    """The readable tree (depth <= 8, 32 leaves a head, its rules in ``READABLE_TREES``' ``.rules.txt``) by name."""
+
+    name = "readable"
+
+    def __init__(self, system: SystemDescription, policy: str | Path | None = None, pool_cells: bool = False):
+        super().__init__(system, policy if policy is not None else READABLE_TREES, pool_cells)
+
+
+__all__ = ["APPROACH_LEVELS_K", "ReadableTreeController", "Tree", "TreeController", "load_trees", "output_in_units", "rules_text", "save_trees", "tree_rules"]

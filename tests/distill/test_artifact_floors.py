@@ -40,8 +40,8 @@ REAL_LOAD = [
     ("ppo/frontier-case7", "ppo", 99.79, 98.5),
     ("trees/frontier-case7.json", "tree", 99.35, 98.0),
     ("trees/frontier-case7-naive.json", "tree", 99.85, 98.5),
-    ("trees/frontier-case7-readable.json", "tree", 97.93, 96.5),
-    ("trees/frontier-case7-readable-naive.json", "tree", 99.32, 98.0),
+    ("trees/frontier-case7-readable.json", "tree", 98.64, 97.5),
+    ("trees/frontier-case7-readable-naive.json", "tree", 99.58, 98.5),
 ]
 # The ablation seeds (lcmesh bench ablation): every case 2-7 at seeds 0-2 scored 99.79-100 % on this window.
 ABLATION_MEASURED = {"case6-seed1": 99.79, "case6-seed2": 99.79, "case7-seed0": 99.79, "case7-seed1": 99.79}
@@ -86,3 +86,17 @@ def test_every_shipped_policy_and_tree_has_a_floor():
     shipped = {p.relative_to(ARTIFACTS).with_suffix("").as_posix() for p in (ARTIFACTS / "ppo").rglob("*.safetensors")}
     shipped |= {f"trees/{p.name}" for p in (ARTIFACTS / "trees").glob("*.json") if not p.name.endswith(".report.json")}
     assert shipped == {a for a, *_ in PAPER + REAL_LOAD}
+
+
+def test_the_readable_tree_is_small_by_name_and_its_rules_are_shipped():
+    from lcmesh.distill.trees import READABLE_TREES, load_trees
+
+    trees, _, _ = load_trees(READABLE_TREES)
+    system = load_system("lcopt-5")
+    assert make_controller("readable", system).name == "readable"
+    for head, tree in trees.items():
+        depth, leaves = tree.depth, tree.n_leaves
+        assert depth <= 8 and leaves <= 32, (head, depth, leaves)
+    rules = READABLE_TREES.with_suffix(".rules.txt").read_text()
+    assert all(f"# {head} tree" in rules for head in trees)
+    assert "branch 0 " not in rules and "branch 1 " in rules  # people read branches from 1

@@ -21,6 +21,7 @@ REGISTRY: dict[str, str] = {
     "lookahead": "lcmesh.twin.controllers.lookahead:LookaheadController",
     "ppo": "lcmesh.distill.policy:PpoController",
     "tree": "lcmesh.distill.trees:TreeController",
+    "readable": "lcmesh.distill.trees:ReadableTreeController",
     "llm": "lcmesh.llm.controller:LlmController",
 }
 # registered controllers that simulate the plant itself (they need `attach(plant, trace)`): run by
