@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -80,6 +80,9 @@ class ControlConfig(_Component):
 
     loop: str = Field("plant", pattern=NAME_PATTERN)
     explain: bool = Field(True, description="publish an explanation (facts + text) for every decision")
+    explainer: Literal["renderer", "llm"] = Field(
+        "renderer", description="who writes the text: the toolbox renderer, or the local LLM with the toolbox's "
+        "what-if facts, checked by the judge and replaced by the rendering when it fails (docs/llm.md)")
     inline: bool = Field(True, description="decide in the bus callback (lowest latency); false: in a worker "
                          "thread with a one-item mailbox, for policies slower than a control period")
 

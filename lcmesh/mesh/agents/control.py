@@ -5,7 +5,9 @@ facts behind it (hottest branch, setpoints and their changes: cheap, so they rid
 critical path). Right after publishing it computes the full grounding facts (the toolbox's
 ``cabinet_decision_facts`` for the cabinet with the hottest branch, or the controller's own
 ``explain_facts``) and the deterministic text, and writes that explanation, under the same
-decision id, to history and to ``explain/{decision_id}``.
+decision id, to history and to ``explain/{decision_id}``. With ``explainer = "llm"`` the local LLM
+writes the text of toolbox-fact decisions from the facts and the toolbox's what-if facts (which then
+ride along in ``facts``); the judge checks it and the rendering stands in when it fails (counted).
 
 By default the decision runs in the bus callback (no thread hand-off: lowest latency). For a policy
 slower than a control period (the LLM), ``inline = false`` moves it to a worker thread with a
@@ -154,7 +156,9 @@ class ControlAgent(Agent):
         self._applied = threading.Event()
         self._applied_step = -1
         self._last_proposal: Proposal | None = None
-        self.tally = {"decisions": 0, "repeats": 0, "bad_states": 0, "explanations": 0}
+        self.tally = {"decisions": 0, "repeats": 0, "bad_states": 0, "explanations": 0, "llm_texts": 0,
+                      "llm_fallbacks": 0}  # fmt: skip
+        self._llm_explainer = None
 
     def on_start(self) -> None:
         self.system = load_system(self.settings.system)
@@ -249,6 +253,24 @@ class ControlAgent(Agent):
             if self.cfg.explain:
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
+    def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation:
+        """The local LLM's short explanation of the hottest cabinet's decision (the rendering when it fails)."""
+        from lcmesh.llm.base import make_backend
+        from lcmesh.llm.explainer import LlmExplainer
+        from lcmesh.mesh.tools.facts import decision_whatif_facts
+
+        if self._llm_explainer is None:
+            self._llm_explainer = LlmExplainer(self.system, make_backend())
+        cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
+        r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "short",
+                                        record_id=decision_id)  # fmt: skip
+        self.tally["llm_texts" if r.source == "llm" else "llm_fallbacks"] += 1
+        facts = cabinet_decision_facts(self.system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
+        facts += decision_whatif_facts(self.system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
+        return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
+                           level="short", text=r.text,
+                           facts=[FactModel.model_validate(_fact_dict(f)) for f in facts])  # fmt: skip
+
     def _explain_loop(self) -> None:
         """Full facts and text for each decision, once the Sensor applied its step (off the critical path)."""
         while not self.stopping:
@@ -259,9 +281,12 @@ class ControlAgent(Agent):
             if self._applied_step < state.step:
                 self._applied.wait(timeout=0.5 * state.period_s)
             try:
-                facts = decision_facts(ctrl, self.system, obs, action, previous)
-                explanation = Explanation(source=self.agent_id, decision_id=decision_id, step=state.step,
-                                          controller=ctrl.name, text=explanation_text(facts), facts=facts)  # fmt: skip
+                if self.cfg.explainer == "llm" and not callable(getattr(ctrl, "explain_facts", None)):
+                    explanation = self._llm_explanation(state, obs, action, previous, decision_id, ctrl)
+                else:
+                    facts = decision_facts(ctrl, self.system, obs, action, previous)
+                    explanation = Explanation(source=self.agent_id, decision_id=decision_id, step=state.step,
+                                              controller=ctrl.name, text=explanation_text(facts), facts=facts)  # fmt: skip
             except Exception as exc:  # a facts bug must not stop the explanations of later decisions
                 log.exception("explaining decision %s failed", decision_id)
                 self._on_handler_error("explain", exc)

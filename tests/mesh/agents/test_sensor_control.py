@@ -190,3 +190,17 @@ def test_a_slow_policy_in_worker_mode_repeats_its_last_action_instead_of_a_fallb
     assert control.tally["repeats"] >= 4, control.tally
     assert not any(r["fallback"] for r in later), [r["source_controller"] for r in later]
     assert sensor.tally["proposals_applied"] >= 10
+
+
+def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_agent, mesh_settings):
+    mesh_settings.control.explainer = "llm"
+    control = start_agent(ControlAgent)
+    start_agent(SensorAgent)
+    assert wait_until(lambda: control.tally["llm_texts"] + control.tally["llm_fallbacks"] >= 1, 120)
+    history = HistoryReader(mesh_settings.history_file)
+    explained = wait_until(lambda: history.explanations(limit=5), 30)
+    names = {f["name"] for f in explained[0]["facts"]}
+    assert {"cabinet", "supply_setpoint", "hottest_branch_expected", "top_input"} <= names
+    assert "EXPLANATION" in explained[0]["text"]  # the LLM's text passed the judge, or the rendering stood in
+    stats = control._llm_explainer.stats
+    assert stats["explanations"] == stats["llm"] + stats["renderer"] >= 1
