@@ -153,15 +153,9 @@ def tower_answer_text(approach_k: float) -> str:
 
 def parse_tower_answer(text: str) -> TowerDecision | ParseFailure:
     """Strictly parse one tower answer; a failure says why (never raises)."""
-    body = (text or "").strip()
-    if not body:
-        return ParseFailure("empty", "the answer is empty")
-    try:
-        data = json.loads(body, parse_constant=_reject_constant)
-    except ValueError as exc:
-        return ParseFailure("not_json", f"the answer is not one JSON object ({exc}): {body[:80]!r}")
-    if not isinstance(data, dict):
-        return ParseFailure("not_json", f"the answer must be a JSON object, got {type(data).__name__}")
+    data = _json_object(text)
+    if isinstance(data, ParseFailure):
+        return data
     try:
         answer = _TowerAnswer.model_validate(data)
     except ValidationError as exc:
@@ -217,8 +211,8 @@ def _reject_constant(name: str):
     raise ValueError(f"non-finite number {name}")
 
 
-def parse_cabinet_answer(text: str, n_branches: int) -> CabinetDecision | ParseFailure:
-    """Strictly parse one answer; a failure says why (never raises)."""
+def _json_object(text: str) -> dict | ParseFailure:
+    """The answer as one JSON object (no NaN or Infinity), or why it is not one."""
     body = (text or "").strip()
     if not body:
         return ParseFailure("empty", "the answer is empty")
@@ -228,6 +222,14 @@ def parse_cabinet_answer(text: str, n_branches: int) -> CabinetDecision | ParseF
         return ParseFailure("not_json", f"the answer is not one JSON object ({exc}): {body[:80]!r}")
     if not isinstance(data, dict):
         return ParseFailure("not_json", f"the answer must be a JSON object, got {type(data).__name__}")
+    return data
+
+
+def parse_cabinet_answer(text: str, n_branches: int) -> CabinetDecision | ParseFailure:
+    """Strictly parse one answer; a failure says why (never raises)."""
+    data = _json_object(text)
+    if isinstance(data, ParseFailure):
+        return data
     try:
         answer = _Answer.model_validate(data)
     except ValidationError as exc:
