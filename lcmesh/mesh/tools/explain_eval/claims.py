@@ -169,7 +169,12 @@ def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -
     if change_key == "tower" and ctx.rec.ct_category is not None and ctx.rec.ct_category.lower() in s.text.lower():
         return True
     strict = {"supply": tx.SUPPLY_SETPOINT, "tower": tx.TOWER_SETPOINT}.get(change_key, pattern)
-    return bool(strict.search(s.text)) and bool(tx.ANY_DIRECTION.search(s.text))
+    if not strict.search(s.text):
+        return False
+    # a direction claimed for this action ("the LWT setpoint was held"), not a comparative of a rationale ("a lower
+    # leaving-water setpoint makes the fans work harder" does not say what the action did)
+    return any(dim == change_key for c in s.clauses if not c.hypothetical
+               for dim, _, _ in direction_claims(ctx, c, include_valves=False))  # fmt: skip
 
 
 # --- direction ----------------------------------------------------------------------------------
@@ -197,11 +202,11 @@ def direction_claims(
         dims += [(f"valve:{ctx.entity(b)}", b.start - clause.start, b.end - clause.start) for b in branches]
     if not dims:
         return []
-    best: dict[str, tuple[int, str, int]] = {}
+    best: dict[str, tuple[int, str, int, int]] = {}  # dimension -> (words away, polarity, word at, dimension at)
     for pol, side, pattern in tx.DIRECTION:
         for w in pattern.finditer(text):
-            if pol != "hold" and tx.NEGATION.search(text[max(0, w.start() - 15) : w.start()]):
-                continue
+            if tx.NEGATION.search(text[max(0, w.start() - 15) : w.start()]) and not tx.NEGATED_HOLD.match(w.group()):
+                continue  # "was not raised" claims no direction; "did not change" is a hold word itself
             if side == "both" and tx.PASSIVE_AUX.search(text[max(0, w.start() - 25) : w.start()]):
                 side = "before"  # "the setpoint was raised": the dimension comes first
             _associate(text, w.start(), w.end(), pol, side, dims, best, single)
@@ -209,7 +214,13 @@ def direction_claims(
         for w in pattern.finditer(text):
             valve_dims = [d for d in dims if d[0].startswith("valve:")]
             _associate(text, w.start(), w.end(), pol, "both", valve_dims, best, single)
-    return [(dim, pol, clause.start + pos) for dim, (_, pol, pos) in best.items()]
+    for b in branches:  # "branches 1 and 3 were cut to 0.37 and 0.37": the list's word is said of each member
+        name = f"valve:{ctx.entity(b)}"
+        if name in best and best[name][3] == b.start - clause.start:
+            for x in branches:
+                if x.group == b.group >= 0:
+                    best.setdefault(f"valve:{ctx.entity(x)}", best[name])
+    return [(dim, pol, clause.start + pos) for dim, (_, pol, pos, _) in best.items()]
 
 
 def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:
@@ -224,12 +235,12 @@ def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False)
             dist = tx.words_between(text, d1, w0)
         else:
             continue
-        candidates.append((dist if far is None else min(dist, far), name))
+        candidates.append((dist if far is None else min(dist, far), name, d0))
     if not candidates:
         return
-    dist, name = min(candidates)
+    dist, name, d0 = min(candidates)
     if dist <= 6 and (name not in best or dist < best[name][0]):
-        best[name] = (dist, pol, w0)
+        best[name] = (dist, pol, w0, d0)
 
 
 def check_direction(ctx: Context) -> tuple[int, int, list[Flag]]:

@@ -151,11 +151,13 @@ def _misattributed(hits: list[PoolEntry], branch: int | None, pool: "ValuePool")
 # bulb"); only the setpoints and the wet bulb are checked, the other names stop the search
 _TOPIC_NAMES = re.compile(
     r"(?P<wet_bulb>wet[\s-]?bulb)"
-    r"|(?P<lw_setpoint>(?:leaving[\s-]+water|LWT|tower)(?:[\s-]+(?:water|leaving-water|temperature))?[\s-]+"
+    r"|(?P<lw_setpoint>(?:leaving[\s-]+water|LWT|tower|(?:condenser|cold)[\s-]+water)"
+    r"(?:[\s-]+(?:water|leaving-water|temperature))?[\s-]+"
     r"set[\s-]?points?)"
     r"|(?P<supply_setpoint>(?:supply|CDU|coolant)(?:[\s-]+(?:water|coolant|temperature|temp|supply))*[\s-]+"
     r"set[\s-]?points?)"
-    r"|(?P<other>measured|\bmeas\b|deliver\w*|tower\s+water|leaving[\s-]+water|return|supply|coolant|branch\w*"
+    r"|(?P<other>measured|\bmeas\b|deliver\w*|tower\s+water|leaving[\s-]+water|condenser[\s-]+water|return|supply"
+    r"|coolant|branch\w*"
     r"|blade\w*|group|approach|above|below|hottest|coolest|warmest|spread|previous\w*"
     r"|limit|band|edge|ceiling|floor|threshold|bound|nears?)",
     re.IGNORECASE,

@@ -49,10 +49,16 @@ _UNITS: list[tuple[re.Pattern, str]] = [
     (_unit(r"W\b|[Ww]atts?\b"), "W"),
     (_unit(r"kg~/~s\b|kg~s(?:\^?-1|⁻¹)|kg per s(?:ec(?:ond)?)?\b"), "kg/s"),
     (_unit(r"[Ll]~/~s\b|lit(?:re|er)s? per second\b"), "L/s"),
+    (_unit(r"kg~/~min\b|kg per min(?:ute)?\b"), "kg/min"),
+    (_unit(r"kg~/~h(?:r|our)?\b|kg per hour\b"), "kg/h"),
+    (_unit(r"lbs?~/~s\b"), "lb/s"),
+    (_unit(r"lbs?~/~min\b"), "lb/min"),
+    (_unit(r"m(?:3|³|\^3)~/~h(?:r|our)?\b|cubic met(?:re|er)s? per hour\b"), "m3/h"),
     (_unit(r"[Ll]~/~min\b|lpm\b|lit(?:re|er)s? per minute\b"), "L/min"),
     (_unit(r"gpm\b|GPM\b|gal(?:lons?)?~/~min\b|gallons? per minute\b"), "gpm"),
     (_unit(r"psid?\b|PSI\b"), "psi"),
     (_unit(r"kPa\b"), "kPa"),
+    (_unit(r"mbar\b"), "mbar"),
     (_unit(r"MPa\b"), "MPa"),
     (_unit(r"Pa\b"), "Pa"),
     (_unit(r"bar\b"), "bar"),
@@ -188,7 +194,9 @@ _PINT = {"W": ("power", "W", "W"), "kW": ("power", "kW", "W"), "MW": ("power", "
          "Pa": ("pressure", "Pa", "Pa"), "kPa": ("pressure", "kPa", "Pa"), "MPa": ("pressure", "MPa", "Pa"),
          "psi": ("pressure", "psi", "Pa"), "bar": ("pressure", "bar", "Pa"),
          "kg/s": ("flow", "kg/s", "kg/s"), "L/s": ("flow", "L/s", "m^3/s"), "L/min": ("flow", "L/min", "m^3/s"),
-         "gpm": ("flow", "gallon/minute", "m^3/s")}  # fmt: skip
+         "gpm": ("flow", "gallon/minute", "m^3/s"), "m3/h": ("flow", "m^3/hour", "m^3/s"),
+         "kg/min": ("flow", "kg/minute", "kg/s"), "kg/h": ("flow", "kg/hour", "kg/s"), "lb/s": ("flow", "lb/s", "kg/s"),
+         "lb/min": ("flow", "lb/minute", "kg/s"), "mbar": ("pressure", "mbar", "Pa")}  # fmt: skip
 _QUANTITY = {u: q for u, (q, _, _) in _PINT.items()}
 
 

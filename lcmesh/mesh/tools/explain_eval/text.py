@@ -188,6 +188,7 @@ _NUM_LIST = r"\d+" + _NOT_A_VALUE + r"(?:\s*(?:,\s*and|,|and|or|&|/|to|through|-
 _BRANCH = re.compile(
     r"\b(?:branch(?:es)?|blade[- ]groups?|BGs?|groups?|valves?)[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I
 )
+_LIST_JOIN = re.compile(r"\s*(?:,|,?\s*and|&)\s*", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
 _ORDINALS = {"first": 1, "second": 2, "third": 3, "fourth": 4, "fifth": 5, "sixth": 6, "seventh": 7, "eighth": 8}
 _BRANCH_ORDINAL = re.compile(r"\b(?P<ord>" + "|".join(_ORDINALS) + r")\s+(?:branch|blade[- ]group|group|valve)\b", I)
@@ -196,7 +197,12 @@ _BRANCH_ORDINAL = re.compile(r"\b(?P<ord>" + "|".join(_ORDINALS) + r")\s+(?:bran
 def branch_mentions(text: str) -> list[BranchMention]:
     """"branch 2", "branches 1 and 3", "blade group 2", "valve 3", "B1", "the second branch"."""
     found = []
-    for g, m in enumerate(_BRANCH.finditer(text)):
+    g, previous_end = -1, None
+    for m in _BRANCH.finditer(text):
+        # "branch 1 and branch 3 were held at 0.37 and 0.37" is one list, like "branches 1 and 3"
+        if previous_end is None or not _LIST_JOIN.fullmatch(text, previous_end, m.start()):
+            g += 1
+        previous_end = m.end()
         for n in re.finditer(r"\d+", m.group("nums")):
             start = m.start() if n.start() == 0 else m.start("nums") + n.start()
             found.append(BranchMention(start, m.start("nums") + n.end(), int(n.group()), group=g))
@@ -237,8 +243,11 @@ def _words(*alternatives: str) -> re.Pattern:
 
 FLOW = _words(r"flow(?:[\s-]+rate)?", r"pump[\s-]+speed", "Q_?cdu", "mass flow")
 DP = re.compile(r"\bdp\b|Δ\s?p\b|\bdelta[\s-]?p\b|differential[\s-]+pressure|\bpressure\b|pump head", I)
-TOWER = re.compile(r"cooling[\s-]+towers?|\btowers?\b|\bCTs?\b|leaving[\s-]+water|\bLWT\b", I)
-TOWER_SETPOINT = re.compile(r"leaving[\s-]+water|\bLWT\b|tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point|\bCT\b|towers?", I)
+_TOWER_WATER = r"leaving[\s-]+water|\bLWT\b|(?:condenser|cold)[\s-]+water"  # the water the towers send back
+TOWER = re.compile(r"cooling[\s-]+towers?|\btowers?\b|\bCTs?\b|" + _TOWER_WATER, I)
+# "the tower fans slowed down" is about the fans, not the leaving-water setpoint
+TOWER_SETPOINT = re.compile(_TOWER_WATER + r"|tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point|\bCT\b"
+                            r"|towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)", I)
 VALVE = _words(
     "valves?", "fractions?", "openings?", "split", r"allocat\w*", r"distribut\w*", r"share of (?:the )?flow",
     r"of (?:the )?(?:\w+ )?flow", "flow share", r"open\w*", r"clos\w*", r"throttl\w*", r"tilt\w*", r"emphasi[sz]\w*",
@@ -252,25 +261,56 @@ EACH = _words("each", "every", "all")
 # direction words, with the side their object is on: "after" (raises the setpoint), "before" (the setpoint
 # rises), "both" (raised the setpoint / the setpoint is raised)
 _BEFORE_NOW = r"than\s+(?:before|previously|the\s+previous|last)"
+# an object right after a verb: "drops the setpoint" is a claim about the setpoint, "the setpoint drops to" is not
+_OBJECT_WORDS = (r"\s+(?:the|its|their|it|this|that|these|those|both|all|each|branch(?:es)?|blade|groups?|valves?"
+                 r"|supply|dp|tower|cdu|coolant|LWT|B\d)\b")
+_OBJECT, _NO_OBJECT = f"(?={_OBJECT_WORDS})", f"(?!{_OBJECT_WORDS})"
+# phrasal verbs: "bumps up the setpoint", "brought down", "crept up"; verbs that go with up/down but do not move a
+# setpoint (heats up, sets up, cools down, settles down) are left out
+_NOT_PHRASAL_UP = (r"(?!(?:held|kept|heat(?:s|ed)?|warm(?:s|ed)?|pick(?:s|ed)?|back(?:s|ed)?|sets?|left|make?s?|made"
+                   r"|end(?:s|ed)?|show(?:s|ed)?|sum(?:s|med)?|line(?:s|d)?|hold(?:s)?|keeps?|look(?:s|ed)?|use(?:s|d)?"
+                   r"|add(?:s|ed)?|build(?:s)?|built|runs?|ran|catch(?:es)?|caught|follow(?:s|ed)?|speak(?:s)?|spoke"
+                   r"|go(?:es)?|went|is|was|are|were|be|been)\b)")
+_NOT_PHRASAL_DOWN = (r"(?!(?:cool(?:s|ed)?|calm(?:s|ed)?|settl(?:e|es|ed)|held|holds?|kept|keeps?|sets?|writ(?:e|es)"
+                     r"|wrote|written|break(?:s)?|broke|broken|shut(?:s)?|note(?:s|d)?|look(?:s|ed)?|track(?:s|ed)?"
+                     r"|go(?:es)?|went|is|was|are|were|be|been|count(?:s|ed)?)\b)")
+_IRREGULAR_PAST = r"(?:brought|taken|took|wound|crept|dialled|dialed|cranked|ratcheted)"
 _DIRECTION_WORDS: list[tuple[str, str, tuple[str, ...]]] = [
     ("up", "after", ("rais(?:e|es|ing)", "increas(?:e|es|ing)", "boost(?:s|ing)?", "lift(?:s|ing)?", "widen(?:s|ing)?",
-                     r"open(?:s|ing)?\s+(?:up|further|wider|more)", r"nudg(?:e|es|ing)\s+up", r"step(?:s|ping)?\s+up")),
+                     r"open(?:s|ing)?\s+(?:up|further|wider|more)", r"nudg(?:e|es|ing)\s+up", r"step(?:s|ping)?\s+up",
+                     r"ups" + _OBJECT, r"hik(?:e|es|ing)", r"elevat(?:e|es|ing)", r"open(?:s|ing)?" + _OBJECT,
+                     _NOT_PHRASAL_UP + r"[a-z]+(?:s|ing)\s+up" + _OBJECT)),
     ("up", "both", ("raised", "increased", "boosted", "lifted", "widened", r"opened\s+(?:up|further|wider|more)",
-                    r"stepped\s+up", r"bumped(?:\s+up)?", r"nudged\s+up", r"pushed\s+up",
+                    r"stepped\s+up", r"bumped(?:\s+up)?", r"nudged\s+up", r"pushed\s+up", "upped", "hiked", "elevated",
+                    # "opened to 0.40", not "the most opened" or "opened the most" (a ranking)
+                    r"(?<!most\s)(?<!least\s)(?<!more\s)(?<!less\s)(?<!fully\s)opened"
+                    r"(?!\s+(?:\w+\s+){0,2}(?:the\s+)?(?:most|least)\b)",
+                    r"adjust(?:s|ed|ing)?\s+upwards?", r"(?:moved|shifted|pushed|nudged)\s+higher",
+                    _IRREGULAR_PAST + r"\s+up",
                     r"(?!(?:held|kept|heated|warmed|picked|backed|set|left)\b)[a-z]+ed\s+up")),
     ("up", "before", ("ris(?:e|es|ing)", "rose", r"goes\s+up", r"went\s+up", r"moves?\s+up", r"up\s+by", r"up\s+from",
-                      r"higher\s+" + _BEFORE_NOW)),
-    ("down", "after", (r"lower(?:s|ing)?(?=\s+(?:the|its|their|it|this|that)\b)", "decreas(?:e|es|ing)",
-                       "reduc(?:e|es|ing)", "cut(?:s|ting)?", r"step(?:s|ping)?\s+down")),
+                      r"higher\s+" + _BEFORE_NOW, r"climb(?:s|ed|ing)?", "grew", r"grows?", r"creep(?:s|ing)?\s+up",
+                      r"tick(?:s|ing)?\s+up", r"edg(?:e|es|ing)\s+up", r"inch(?:es|ing)?\s+up")),
+    ("down", "after", (r"lower(?:s|ing)?" + _OBJECT, "decreas(?:e|es|ing)", "reduc(?:e|es|ing)", "cut(?:s|ting)?",
+                       r"step(?:s|ping)?\s+down", r"drop(?:s|ping)?" + _OBJECT, r"eas(?:e|es|ing)" + _OBJECT,
+                       r"trim(?:s|ming)?", r"shav(?:e|es|ing)", r"slash(?:es|ing)?", r"lessen(?:s|ing)?",
+                       _NOT_PHRASAL_DOWN + r"[a-z]+(?:s|ing)\s+(?:down|back)" + _OBJECT)),
     ("down", "both", ("lowered", "decreased", "reduced", "closed", "throttled", "narrowed", r"stepped\s+down",
                       r"cut\s+back", "clos(?:e|es|ing)", "throttl(?:e|es|ing)", "narrow(?:s|ing)?", "trimmed", "eased",
-                      "cut", r"backed\s+off", r"pulled\s+down", r"nudged\s+down",
+                      "cut", "dropped", r"backed\s+off", r"pulled\s+down", r"nudged\s+down", "shaved", "slashed",
+                      "lessened",
+                      r"adjust(?:s|ed|ing)?\s+downwards?", r"(?:moved|shifted|pushed|nudged)\s+lower",
+                      _IRREGULAR_PAST + r"\s+(?:down|back)",
                       r"(?!(?:cooled|calmed|settled|held|kept|set)\b)[a-z]+ed\s+(?:down|back)")),
-    ("down", "before", ("drops?", "dropped", "falls?", "fell", r"goes\s+down", r"went\s+down", r"moves?\s+down",
-                        r"down\s+by", r"down\s+from", r"lower\s+" + _BEFORE_NOW)),
-    ("hold", "after", ("hold(?:s|ing)?", "keep(?:s|ing)?", "maintain(?:s|ing)?", r"leaves?(?!\s+water)")),
+    ("down", "before", (r"drop(?:s|ping)?" + _NO_OBJECT, "falls?", "fell", r"goes\s+down", r"went\s+down",
+                        r"moves?\s+down",
+                        r"down\s+by", r"down\s+from", r"lower\s+" + _BEFORE_NOW, r"dip(?:s|ped|ping)?",
+                        r"slip(?:s|ped|ping)?", r"eas(?:e|es|ing)" + _NO_OBJECT, r"creep(?:s|ing)?\s+down",
+                        r"tick(?:s|ing)?\s+down", r"edg(?:e|es|ing)\s+down", r"inch(?:es|ing)?\s+down")),
+    ("hold", "after", ("hold(?:s|ing)?", "keep(?:s|ing)?", "maintain(?:s|ing)?", r"leaves?(?!\s+water)",
+                       r"pin(?:s|ning)?", r"freez(?:e|es|ing)")),
     ("hold", "both", ("held", "kept", "maintained", "unchanged", r"left\s+(?:at|unchanged|alone)", "fixed",
-                      r"no\s+change", "parked")),
+                      r"no\s+change", "parked", "pinned", "frozen", "untouched", "unaltered", "retained", "preserved")),
     ("hold", "before", ("steady", "constant", "stays?", "stayed", "remains?", "remained", r"(?:is|was)\s+not\s+changed",
                         r"did\s+not\s+change")),
 ]  # fmt: skip
@@ -284,7 +324,10 @@ VALVE_LESS = _words(r"(?:less|smaller|lower|reduced)" + _SHARE_NOUN)
 RELATIVE_TO_OTHERS = _words("than", "equal", "even", "average", "others?")
 RELATIVE_TO_LOAD = _words(r"(?:load|power)\s+share", r"its share of (?:the )?(?:load|power)")
 PASSIVE_AUX = re.compile(r"\b(?:is|was|are|were|be|been|being|gets?|got|has|have|had)\s+(?:\w+\s+)?$", I)
-NEGATION = _words("not", "no", "never", "n't", "cannot", "without")
+NEGATION = re.compile(_words("not", "no", "never", "cannot", "without", "neither", "nor", r"instead\s+of",
+                             r"rather\s+than").pattern + r"|n[’']t\b", I)  # "didn't": no word boundary before n't
+
+NEGATED_HOLD = re.compile(r"(?:is|was)\s+not\s+changed|did\s+not\s+change|no\s+change", I)
 
 # physics: cause adjectives right before a dimension word, and effect targets with their words
 CAUSE_ADJ_UP = re.compile(
