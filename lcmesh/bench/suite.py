@@ -131,10 +131,11 @@ def load_day(day: Day, system: SystemDescription, hours: float | None = None) ->
     return load_trace(day.trace, system, scenario=day.scenario, hours=hours)
 
 
-def run_day(system: SystemDescription, trace: Trace, controller: Controller) -> dict:
-    """``controller`` on a fresh plant over ``trace``: the suite's figures for that day."""
+def run_day(system: SystemDescription, trace: Trace, controller: Controller, score_from: int = 0) -> dict:
+    """``controller`` on a fresh plant over ``trace``: the suite's figures for that day (from step ``score_from``,
+    the steps before it a warm-up by the same controller)."""
     with Plant(system) as plant:
-        run = run_twin(plant, trace, controller)
+        run = run_twin(plant, trace, controller, score_from=score_from)
     kpi, hours = run.kpi, run.sim_seconds / 3600.0
     fan_kwh, pump_kwh = cooling_energies_kwh(kpi, hours)
     return {

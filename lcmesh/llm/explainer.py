@@ -6,7 +6,9 @@ setpoint, the CDU pump at the new and the held dp and their difference in kW, th
 normal); the LLM writes the explanation from all of them (``lcmesh/prompts/controller_explain.md``:
 compact ``name = value`` lines), and the judge grounds its numbers against all of them. A text's
 *what-if claims* are the what-if facts it states, with their unit, that the rendering does not
-(``whatif_claims``); they count only in a text the judge passes.
+(``whatif_claims``); they count only in a text the judge passes. The what-if facts go to the detailed
+levels only (``WHATIF_LEVELS``): a short text stops at the WHAT IF heading, since decoding that
+section does not fit the short budget on 2 cores.
 ``lcmesh explain-eval``'s scorer checks the text; an explanation below the thresholds (numeric
 grounding 0.98, coverage 1, direction consistency 0.95) or with missing sections is replaced by the
 deterministic rendering, and the reason is counted. The distilled model was trained to write the
@@ -39,6 +41,10 @@ from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
 
 MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
+# Levels whose texts may add the WHAT IF section: decoding it token by token takes 2-3 s on 2 cores, more than the
+# short level's budget leaves after its one draft pass, so a short text stops at the section's heading.
+WHATIF_LEVELS = ("detailed", "very_detailed")
+WHATIF_HEADING = "## WHAT IF"
 TIME_BUDGET_S = {"short": 2.85, "detailed": 9.7, "very_detailed": 20.0}  # the LLM's share; then the renderer
 LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
 
@@ -78,6 +84,17 @@ def _states(mentions, fact: Fact) -> bool:
     target = to_si(float(fact.value))
     return any(m.unit and any(iq == q and abs(iv - target) <= max(_CLAIM_TOL[q], tol) for iq, iv, tol in m.interpretations)
                for m in mentions)  # fmt: skip
+
+
+def unverified_whatif_numbers(text: str, facts: list[Fact]) -> list[str]:
+    """Numbers with a unit in the text's WHAT IF section that state none of ``facts``: each what-if claim must hold on
+    its own (a text-wide grounding share of 0.98 would let one wrong claim through in a long text)."""
+    if WHATIF_HEADING not in text:
+        return []
+    section = text[text.index(WHATIF_HEADING) :]
+    numeric = [f for f in facts if f.unit in _CANONICAL and isinstance(f.value, (int, float))]
+    return [m.text for m in extract_numbers(section)
+            if m.role == "measure" and m.unit and not any(_states([m], f) for f in numeric)]  # fmt: skip
 
 
 def whatif_claims(text: str, whatif_facts: list[Fact], rendered: str) -> list[str]:
@@ -142,13 +159,15 @@ class LlmExplainer:
             raise ValueError(f"`level` must be one of {', '.join(MAX_NEW_TOKENS)}, got {level!r}")
         facts = cabinet_decision_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet)
         rendered = render_explanation(facts, level)
-        extra = decision_whatif_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet) if self.whatif else []
+        whatif = self.whatif and level in WHATIF_LEVELS
+        extra = decision_whatif_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet) if whatif else []
         t0 = self.clock()
         try:
             gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
+                                    stop=() if whatif else (WHATIF_HEADING,),
                                     drafts=[rendered] if self.use_draft else None,
                                     time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
-            text, n_new = gen.text.strip() + "\n", gen.new_tokens
+            text, n_new = gen.text.removesuffix(WHATIF_HEADING).strip() + "\n", gen.new_tokens
             error = gen.failure
         except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
             text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
@@ -161,6 +180,8 @@ class LlmExplainer:
             reason = "timeout" if error == "timeout" else "backend"
         else:
             reason = self._failed_check(scores, item["flags"])
+            if reason is None and unverified_whatif_numbers(text, facts + extra):
+                reason = "whatif_unverified"
         self.stats["explanations"] += 1
         if reason is None:
             self.stats["llm"] += 1

@@ -59,15 +59,19 @@ def run_twin(
     spinup_hours: float = 1.0,
     record_every: int = 1,
     on_step: Callable[[int], None] | None = None,
+    score_from: int = 0,
 ) -> RunResult:
     """Run `controller` on `plant` over `trace` (from its first step), after a spin-up at its first row.
 
     With a spin-up the plant first restarts from the FMU's initial state (faults and deviations kept), so the
-    result does not depend on what the plant ran before.
+    result does not depend on what the plant ran before. With ``score_from = k`` the first k steps are a warm-up
+    run by the same controller (its state carries over) and the KPIs cover the steps from k on.
 
     A controller with an ``attach(plant, trace)`` method (the look-ahead) gets both before the spin-up.
     """
     n_steps = trace.n_steps if n_steps is None else min(n_steps, trace.n_steps)
+    if not 0 <= score_from < n_steps:
+        raise ValueError(f"`score_from` must be in 0..{n_steps - 1}, got {score_from}")
     attach = getattr(controller, "attach", None)
     if callable(attach):
         attach(plant, trace)
@@ -88,7 +92,10 @@ def run_twin(
         trace.blade_power_w(k, out=power)
         action = controller.act(Observation(out, wet_bulb, power, k * trace.step_s))
         out = plant.step(power, wet_bulb, action)
-        kpi.add(out)
+        if k + 1 == score_from:
+            kpi.start(out)  # the warm-up ends: KPIs from here
+        if k >= score_from:
+            kpi.add(out)
         if k % record_every == 0:
             rec.add(k * trace.step_s + trace.step_s, wet_bulb, out)
         if on_step is not None:
@@ -96,7 +103,7 @@ def run_twin(
     wall = time.perf_counter() - t0
     return RunResult(
         kpi=kpi.result(),
-        sim_seconds=n_steps * trace.step_s,
+        sim_seconds=(n_steps - score_from) * trace.step_s,
         wall_seconds=wall,
         system=plant.system.name,
         trace=trace.name,

@@ -132,17 +132,38 @@ def test_the_llm_gets_the_whatif_facts_and_a_text_stating_them_counts_its_claims
     facts, extra = _whatif(decision, lcopt5)
     names = {f.name for f in extra}
     assert {"hottest_branch_expected", "hottest_branch_if_held", "pump_power_expected", "top_input"} <= names
-    text = render_explanation(facts, "short") + "\n" + render_whatif(extra)
+    text = render_explanation(facts, "detailed") + "\n" + render_whatif(extra)
     backend = EchoBackend(text)
     explainer = LlmExplainer(lcopt5, backend)
-    r = explainer.explain(out, action, previous, 291.15, 1, "short")
+    r = explainer.explain(out, action, previous, 291.15, 1, "detailed")
     user = backend.calls[0][0][0][1]["content"]
     assert "hottest_branch_if_held = " in user and "top_input = " in user
     assert r.source == "llm" and not r.identical_to_rendering
     assert "hottest_branch_expected" in r.whatif_claims
     assert explainer.stats["llm_with_whatif_claim"] == 1 and explainer.stats["llm_identical_to_rendering"] == 0
-    same = LlmExplainer(lcopt5, EchoBackend()).explain(out, action, previous, 291.15, 1, "short")  # the draft only
+    same = LlmExplainer(lcopt5, EchoBackend()).explain(out, action, previous, 291.15, 1, "detailed")  # the draft only
     assert same.identical_to_rendering and same.whatif_claims == []
+
+
+class StopAwareEcho(EchoBackend):
+    """Writes the draft, then a WHAT IF section, and honours stop strings like the real backend (kept, then cut)."""
+
+    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None, time_budget_s=None):
+        self.calls.append((conversations, drafts, stop))
+        text = drafts[0] + "\n## WHAT IF\n\nThe hottest branch should settle near 99.9 °C.\n"
+        for s in stop:
+            if s in text:
+                text = text[: text.index(s) + len(s)]
+        return [Generation(text, 100, 50, 0.01, "stop")]
+
+
+def test_a_short_text_gets_no_whatif_facts_and_stops_at_the_whatif_heading(decision, lcopt5):
+    out, action, previous = decision
+    backend = StopAwareEcho()
+    r = LlmExplainer(lcopt5, backend).explain(out, action, previous, 291.15, 1, "short")
+    conversations, _, stop = backend.calls[0]
+    assert "hottest_branch_if_held" not in conversations[0][1]["content"] and stop == ("## WHAT IF",)
+    assert r.source == "llm" and r.identical_to_rendering and "WHAT IF" not in r.text
 
 
 def test_a_wrong_whatif_number_is_caught_by_the_judge(decision, lcopt5):
@@ -150,11 +171,15 @@ def test_a_wrong_whatif_number_is_caught_by_the_judge(decision, lcopt5):
     facts, extra = _whatif(decision, lcopt5)
     held = next(f for f in extra if f.name == "hottest_branch_if_held")
     wrong = float(held.value) + 7.3
-    text = (render_explanation(facts, "short") + f"\n## WHAT IF\n\nHolding the previous setpoint would leave the hottest "
-            f"branch near {wrong:.1f} °C.\n")  # fmt: skip
-    r = LlmExplainer(lcopt5, EchoBackend(text)).explain(out, action, previous, 291.15, 1, "short")
-    assert r.source == "renderer" and r.fallback_reason == "numeric_grounding"
+    text = (render_explanation(facts, "detailed") + f"\n## WHAT IF\n\nHolding the previous setpoint would leave the "
+            f"hottest branch near {wrong:.1f} °C.\n")  # fmt: skip
+    r = LlmExplainer(lcopt5, EchoBackend(text)).explain(out, action, previous, 291.15, 1, "detailed")
+    assert r.source == "renderer" and r.fallback_reason == "whatif_unverified"  # one number in ~60: below the share
     assert r.whatif_claims == []
+    short = (render_explanation(facts, "short") + f"\n## WHAT IF\n\nHolding the previous setpoint would leave the "
+             f"hottest branch near {wrong:.1f} °C.\n")  # fmt: skip
+    r = LlmExplainer(lcopt5, EchoBackend(short)).explain(out, action, previous, 291.15, 1, "short")
+    assert r.source == "renderer" and r.fallback_reason == "numeric_grounding"  # a short text fails the share too
 
 
 def test_whatif_estimates_follow_the_toolbox_relations(decision, lcopt5):

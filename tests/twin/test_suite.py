@@ -167,3 +167,33 @@ def test_the_cli_writes_json_markdown_and_plot_and_answers_bad_input(tmp_path):
     assert bad_day.exit_code == 2 and "did you mean 'mild-1019'" in bad_day.output
     no_controller = runner.invoke(app, ["bench", "suite", "--controllers", ","])
     assert no_controller.exit_code == 2 and "at least one controller" in no_controller.output
+
+
+def test_a_warmup_runs_unscored_and_the_kpis_cover_the_window(lcopt5):
+    from lcmesh.twin.controllers import make_controller
+    from lcmesh.twin.plant import Plant
+    from lcmesh.twin.run import run_twin
+
+    trace = suite.load_day(suite.days_named(["hot-1033"])[0], lcopt5, hours=0.5)  # 120 steps
+    with Plant(lcopt5) as plant:
+        whole = run_twin(plant, trace, make_controller("g36", lcopt5))
+        warmup = run_twin(plant, trace, make_controller("g36", lcopt5), n_steps=80)
+        window = run_twin(plant, trace, make_controller("g36", lcopt5), score_from=80)
+        with pytest.raises(ValueError, match="score_from"):
+            run_twin(plant, trace, make_controller("g36", lcopt5), score_from=120)
+    assert window.sim_seconds == 40 * trace.step_s and whole.sim_seconds == 120 * trace.step_s
+    for key in ("pump_power_kw_avg", "ct_power_kw_avg"):  # the same deterministic run, split at step 80
+        assert 80 * warmup.kpi[key] + 40 * window.kpi[key] == pytest.approx(120 * whole.kpi[key], rel=1e-6)
+
+
+def test_the_busiest_window_is_picked_from_the_load_alone(lcopt5):
+    import numpy as np
+
+    from lcmesh.bench.llm import busiest_window
+
+    trace = suite.load_day(suite.days_named(["frontier"])[0], lcopt5)
+    start = busiest_window(trace, 240)
+    load = trace.cabinet_load_w.sum(axis=1)
+    means = np.convolve(load, np.ones(240) / 240, mode="valid")
+    assert means[start] == pytest.approx(means.max())
+    assert busiest_window(trace.slice(0, 100), 240) == 0  # a window longer than the trace starts at its first step

@@ -6,7 +6,7 @@ critical path). Right after publishing it computes the full grounding facts (the
 ``cabinet_decision_facts`` for the cabinet with the hottest branch, or the controller's own
 ``explain_facts``) and the deterministic text, and writes that explanation, under the same
 decision id, to history and to ``explain/{decision_id}``. With ``explainer = "llm"`` the local LLM
-writes the text of toolbox-fact decisions from the facts and the toolbox's what-if facts (which then
+writes a detailed text of toolbox-fact decisions from the facts and the toolbox's what-if facts (which then
 ride along in ``facts``); the judge checks it and the rendering stands in when it fails (counted).
 
 By default the decision runs in the bus callback (no thread hand-off: lowest latency). For a policy
@@ -254,7 +254,8 @@ class ControlAgent(Agent):
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
     def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation:
-        """The local LLM's short explanation of the hottest cabinet's decision (the rendering when it fails)."""
+        """The local LLM's detailed explanation of the hottest cabinet's decision (the rendering when it fails); the
+        detailed level, since only its budget leaves room for the what-if section (docs/llm.md)."""
         from lcmesh.llm.base import make_backend
         from lcmesh.llm.explainer import LlmExplainer
         from lcmesh.mesh.tools.facts import decision_whatif_facts
@@ -262,13 +263,13 @@ class ControlAgent(Agent):
         if self._llm_explainer is None:
             self._llm_explainer = LlmExplainer(self.system, make_backend())
         cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
-        r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "short",
+        r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "detailed",
                                         record_id=decision_id)  # fmt: skip
         self.tally["llm_texts" if r.source == "llm" else "llm_fallbacks"] += 1
         facts = cabinet_decision_facts(self.system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
         facts += decision_whatif_facts(self.system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
         return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
-                           level="short", text=r.text,
+                           level="detailed", text=r.text,
                            facts=[FactModel.model_validate(_fact_dict(f)) for f in facts])  # fmt: skip
 
     def _explain_loop(self) -> None:

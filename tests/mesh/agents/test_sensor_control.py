@@ -201,6 +201,6 @@ def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_a
     explained = wait_until(lambda: history.explanations(limit=5), 30)
     names = {f["name"] for f in explained[0]["facts"]}
     assert {"cabinet", "supply_setpoint", "hottest_branch_expected", "top_input"} <= names
-    assert "EXPLANATION" in explained[0]["text"]  # the LLM's text passed the judge, or the rendering stood in
+    assert "## EXECUTIVE SUMMARY" in explained[0]["text"]  # the LLM's text passed the judge, or the rendering did
     stats = control._llm_explainer.stats
     assert stats["explanations"] == stats["llm"] + stats["renderer"] >= 1
