@@ -125,15 +125,23 @@ def _valves(f: _Facts) -> str:
     return "Valve split: " + "; ".join(parts) + "."
 
 
+# a change fact's direction label, when the facts carry one (a change at the band's edge rounds onto it)
+_DIRECTION_OF = {"supply_setpoint_change": "supply_setpoint_direction", "dp_setpoint_change": "dp_setpoint_direction",
+                 "tower_lw_change": "tower_lw_direction"}  # fmt: skip
+
+
 def _move(f: _Facts, change: str, value: str) -> str:
     """'raised by 0.05 to 0.45', 'held at 0.33' or 'set to 0.33' (no previous action)."""
     if change not in f:
         return f"set to {f.d(value)}"
     delta = float(f.v(change))
-    band = 0.005 if f.by_name[change].unit == "fraction" else 0.05
-    if abs(delta) <= band:
+    word = f.v(_DIRECTION_OF.get(change, ""))  # decided on the unrounded change, as the judge decides it
+    if word not in ("raised", "lowered", "held"):
+        band = 0.005 if f.by_name[change].unit == "fraction" else 0.05
+        word = "held" if abs(delta) <= band else "raised" if delta > 0 else "lowered"
+    if word == "held":
         return f"held at {f.d(value)}"
-    return f"{'raised' if delta > 0 else 'lowered'} by {f.d(change)} to {f.d(value)}"
+    return f"{word} by {f.d(change)} to {f.d(value)}"
 
 
 def _valve_alignment(f: _Facts) -> str:

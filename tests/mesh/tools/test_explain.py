@@ -175,3 +175,18 @@ def test_pipeline_scores_over_hours_of_the_twin(lcopt5, controller):
     assert agg["numeric_grounding"] >= 0.98 and agg["coverage"] == 1.0 and agg["direction_consistency"] >= 0.95
     assert agg["direction_claims_checked"] >= len(lines) * 3  # the claims are really there and checked
     assert agg["flag_counts"] == {}, [f for it in result["items"] for f in it["flags"]][:5]
+
+
+@pytest.mark.parametrize("delta_k, word", [(0.05001, "raised"), (0.04999, "held"), (-0.05001, "lowered")])
+def test_a_change_at_the_band_edge_is_worded_as_the_judge_reads_it(decision, delta_k, word):
+    """The change fact rounds 0.05001 K to 0.05 (inside the band), the judge reads 0.0500 (outside): the renderer
+    decides on the unrounded change, like the judge."""
+    system, out, action, previous, wb = decision
+    moved = action.copy()
+    moved.lw_setpoint_k[:] = np.mean(previous.lw_setpoint_k) + delta_k
+    facts = cabinet_decision_facts(system, out, moved, previous, wb, 0)
+    text = render_explanation(facts, "short")
+    assert f"leaving-water setpoint is {word}" in text
+    item = evaluate_record(explanation_record(out, moved, facts, text, cabinet=0, record_id="t",
+                                              previous_action=previous, wet_bulb_k=wb, level="short"))  # fmt: skip
+    assert not [f for f in item["flags"] if f["kind"] == "wrong_direction"], item["flags"]

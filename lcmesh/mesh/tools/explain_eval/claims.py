@@ -284,14 +284,22 @@ def _expected(ctx: Context, dim: str, clause: str) -> tuple[str, str] | None:
             delta, ref = rec.valves[j] - 1.0 / rec.valves.size, "equal split"
         else:
             delta, ref = rec.valve_changes[j], "previous action"
+        if ref == "previous action" and _at_band_edge(float(delta), band["valve"]):
+            return None
         return _polarity(float(delta), band["valve"]), ref
     change = rec.changes.get(dim)
     if change is not None:
-        return _polarity(change, band[dim]), "previous action"
+        return None if _at_band_edge(change, band[dim]) else (_polarity(change, band[dim]), "previous action")
     now = {"flow": rec.flow_kg_s, "dp": rec.dp_pa}.get(dim)
     if now is not None and dim in rec.observed:
         return _polarity(now - rec.observed[dim], band[dim]), "observation"
     return None
+
+
+def _at_band_edge(delta: float, band: float) -> bool:
+    """A change within 2 % of the dead band's edge: its rounding decides hold or move, so neither claim is checkable
+    (a writer rounding to 3 decimals and a record rounded to 4 can fall on opposite sides)."""
+    return abs(abs(delta) - band) <= 0.02 * band
 
 
 def _polarity(delta: float, band: float) -> str:
