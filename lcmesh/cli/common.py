@@ -89,6 +89,22 @@ def stage_progress(description: str) -> Iterator[Callable[[str, int, int], None]
         yield on_progress
 
 
+@contextmanager
+def stage_bars() -> Iterator[Callable[[str, int, int], None]]:
+    """One progress bar per stage of a ``progress(stage, done, total)`` callback (a training stage's text may carry
+    `` loss ...`` after its name: the same bar)."""
+    with progress_bar() as progress:
+        tasks: dict[str, int] = {}
+
+        def on_progress(stage: str, done: int, total: int) -> None:
+            key = stage.split(" loss ")[0]
+            if key not in tasks:
+                tasks[key] = progress.add_task(stage, total=total)
+            progress.update(tasks[key], completed=done, total=total, description=stage)
+
+        yield on_progress
+
+
 def progress_bar() -> Progress:
     return Progress(
         TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),

@@ -7,22 +7,14 @@ from typing import Annotated, Optional
 
 import typer
 
-from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, fail, progress_bar, write_bench
+from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, fail, progress_bar, stage_bars, write_bench
 from lcmesh.cli.control import dataclass_options
 
 
 def _distill_llm(config) -> None:
     from lcmesh.distill.llm import distill_llm
 
-    with progress_bar() as progress:
-        tasks: dict[str, int] = {}
-
-        def on_progress(stage: str, done: int, total: int) -> None:
-            key = stage.split(" loss ")[0]
-            if key not in tasks:
-                tasks[key] = progress.add_task(stage, total=total)
-            progress.update(tasks[key], completed=done, total=total, description=stage)
-
+    with stage_bars() as on_progress:
         manifest = distill_llm(config, progress=on_progress)
     h, t = manifest["metrics"]["heldout"], manifest["metrics"]["train"]
     console.print(

@@ -2,22 +2,14 @@
 
 from __future__ import annotations
 
-from lcmesh.cli.common import console, distill_app, progress_bar
+from lcmesh.cli.common import console, distill_app, stage_bars
 from lcmesh.cli.control import dataclass_options
 
 
 def _distill_planner(config) -> None:
     from lcmesh.distill.planner_data import distill_planner
 
-    with progress_bar() as progress:
-        tasks: dict[str, int] = {}
-
-        def on_progress(stage: str, done: int, total: int) -> None:
-            key = stage.split(" loss ")[0]
-            if key not in tasks:
-                tasks[key] = progress.add_task(stage, total=total)
-            progress.update(tasks[key], completed=done, total=total, description=stage)
-
+    with stage_bars() as on_progress:
         manifest = distill_planner(config, progress=on_progress)
     t, m = manifest["metrics"]["train"], manifest["metrics"]
     llm, rules = m["dev_llm"], m["dev_rules"]
