@@ -72,6 +72,7 @@ class ExplanationResult:
     flags: list = field(default_factory=list)
     whatif_claims: list[str] = field(default_factory=list)  # what-if facts the LLM's text states and the rendering lacks
     identical_to_rendering: bool = False
+    facts: list[Fact] = field(default_factory=list)  # what the LLM was given and the judge grounded the text against
 
 
 # What a what-if fact's unit reads as in the judge's number interpretations: (quantity, value -> canonical SI)
@@ -189,10 +190,12 @@ class LlmExplainer:
             same = text.strip() == rendered.strip()
             self.stats["llm_with_whatif_claim"] += bool(claims)
             self.stats["llm_identical_to_rendering"] += same
-            return ExplanationResult(text, "llm", level, scores, seconds, n_new, None, item["flags"], claims, same)
+            return ExplanationResult(text, "llm", level, scores, seconds, n_new, None, item["flags"], claims, same,
+                                     facts + extra)  # fmt: skip
         self.stats["renderer"] += 1
         self.stats[f"fallback_{reason}"] += 1
-        return ExplanationResult(rendered, "renderer", level, scores, seconds, n_new, reason, item["flags"])
+        return ExplanationResult(rendered, "renderer", level, scores, seconds, n_new, reason, item["flags"],
+                                 facts=facts + extra)  # fmt: skip
 
     def _failed_check(self, scores: dict, flags: list[dict]) -> str | None:
         for key, minimum in vars(self.thresholds).items():

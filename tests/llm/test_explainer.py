@@ -141,6 +141,7 @@ def test_the_llm_gets_the_whatif_facts_and_a_text_stating_them_counts_its_claims
     assert r.source == "llm" and not r.identical_to_rendering
     assert "hottest_branch_expected" in r.whatif_claims
     assert explainer.stats["llm_with_whatif_claim"] == 1 and explainer.stats["llm_identical_to_rendering"] == 0
+    assert [f.name for f in r.facts] == [f.name for f in facts + extra]  # what it was judged against, for the mesh
     same = LlmExplainer(lcopt5, EchoBackend()).explain(out, action, previous, 291.15, 1, "detailed")  # the draft only
     assert same.identical_to_rendering and same.whatif_claims == []
 

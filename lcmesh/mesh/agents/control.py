@@ -258,7 +258,6 @@ class ControlAgent(Agent):
         detailed level, since only its budget leaves room for the what-if section (docs/llm.md)."""
         from lcmesh.llm.base import make_backend
         from lcmesh.llm.explainer import LlmExplainer
-        from lcmesh.mesh.tools.facts import decision_whatif_facts
 
         if self._llm_explainer is None:
             self._llm_explainer = LlmExplainer(self.system, make_backend())
@@ -266,11 +265,9 @@ class ControlAgent(Agent):
         r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "detailed",
                                         record_id=decision_id)  # fmt: skip
         self.tally["llm_texts" if r.source == "llm" else "llm_fallbacks"] += 1
-        facts = cabinet_decision_facts(self.system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
-        facts += decision_whatif_facts(self.system, obs.out, action, previous, obs.wet_bulb_k, cabinet)
         return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
                            level="detailed", text=r.text,
-                           facts=[FactModel.model_validate(_fact_dict(f)) for f in facts])  # fmt: skip
+                           facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:
         """Full facts and text for each decision, once the Sensor applied its step (off the critical path)."""
