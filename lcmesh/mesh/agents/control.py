@@ -159,6 +159,7 @@ class ControlAgent(Agent):
         self.tally = {"decisions": 0, "repeats": 0, "bad_states": 0, "explanations": 0, "llm_texts": 0,
                       "llm_fallbacks": 0}  # fmt: skip
         self._llm_explainer = None
+        self._explain_thread: threading.Thread | None = None
 
     def on_start(self) -> None:
         self.system = load_system(self.settings.system)
@@ -172,7 +173,13 @@ class ControlAgent(Agent):
             self.subscribe(keys.plant_state(self.site), PlantState, self._on_state_async, latest=True)
             self.spawn("decide", self._decide_loop)
         if self.cfg.explain:
-            self.spawn("explain", self._explain_loop)
+            self._explain_thread = self.spawn("explain", self._explain_loop)
+
+    def on_stop(self) -> None:
+        """An LLM explanation in progress outlives the base class's 5 s join (its budget is 9.7 s): wait for it, or
+        the model's threads meet interpreter shutdown mid-generation (the process aborts)."""
+        if self._explain_thread is not None and self._llm_explainer is not None:
+            self._explain_thread.join(timeout=30.0)
 
     def details(self) -> dict:
         c = self.controller
