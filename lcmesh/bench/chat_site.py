@@ -553,14 +553,7 @@ def site_plant(path: str | Path, instance_name: str = "site-whatif") -> Plant:
     """
     manifest = load_manifest(path)
     twin = TwinHost(manifest.system, manifest.trace, manifest.scenario, 0.0, instance_name=instance_name)
-    _slice_from(twin, manifest.start_hour)
-    last_action = twin.resume(_checkpoint(Path(path), manifest.run_id))
-    wet_bulb_k, power = twin.inputs(twin.step - 1)
-    inp = twin.plant.inp
-    inp["blade_power_w"][:], inp["wet_bulb_k"][...] = power, wet_bulb_k
-    for name, value in zip(("supply_temp_setpoint_k", "dp_setpoint_pa", "valve_fraction", "lw_setpoint_k"),
-                           last_action.astuple()):  # fmt: skip
-        inp[name][...] = value
+    twin.resume(_checkpoint(Path(path), manifest.run_id))  # the checkpoint's FMU state holds the last inputs
     return twin.plant
 
 

@@ -179,6 +179,7 @@ class Plant:
                 channel.values[:] = np.concatenate([array.ravel() for array in _input_arrays(mirror)])
                 channel.write()
         self._outputs.read()
+        self._read_inputs()
         self.n_steps_done = 0
         return self.out
 
@@ -194,15 +195,22 @@ class Plant:
         return self.out
 
     def save_state(self) -> FmuState:
+        """The FMU state, inputs included (load, wet bulb, setpoints, faults, deviations)."""
         return self.runner.save_state()
 
     def restore_state(self, state: FmuState) -> None:
+        """Back to `state`: its outputs and every input saved with it (load, wet bulb, setpoints, faults, deviations)."""
         self.runner.restore_state(state)
         self._outputs.read()
         self._read_inputs()
 
     def _read_inputs(self) -> None:
-        """Faults and deviations are FMU state: after a restore, ``faults`` and ``deviations`` show the FMU's."""
+        """Inputs are FMU state: after a restore, ``inp``, ``faults`` and ``deviations`` show the FMU's.
+
+        Without this a plant resumed from a checkpoint would report (and a what-if would hold) the inputs
+        it last stepped with in this process, not the ones the checkpoint's step applied.
+        """
+        self._inputs.read()  # `inp` are views into this buffer
         for channel, mirror in ((self._faults, self.faults), (self._deviations, self.deviations)):
             if channel is None:
                 continue

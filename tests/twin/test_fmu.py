@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lcmesh.mesh.tools import whatif
 from lcmesh.twin.fmu_build import build_fmu
 from lcmesh.twin.fmu_runner import FmuError, validate_fmu
-from lcmesh.twin.plant import Plant
+from lcmesh.twin.plant import Plant, PlantAction
 from lcmesh.twin.system import parse_system
 
 
@@ -78,6 +79,27 @@ def test_state_save_restore_and_serialize(plant):
     np.testing.assert_array_equal(_run(plant, 20), ahead)
     with pytest.raises(FmuError, match="DeSerializeFMUstate"):
         plant.runner.deserialize_state(blob[:-8])
+
+
+def _own_inputs(plant: Plant) -> tuple[np.ndarray, float, PlantAction]:
+    """The load, wet bulb and setpoints the plant holds now (what a what-if or a resumed Sensor steps with)."""
+    return plant.inp["blade_power_w"].copy(), float(plant.inp["wet_bulb_k"]), whatif.current_action(plant)
+
+
+def test_restore_state_brings_back_the_inputs_saved_with_it(plant):
+    _run(plant, 10)
+    saved_inputs = {name: view.copy() for name, view in plant.inp.items()}
+    state = plant.save_state()
+    ahead = plant.step(*_own_inputs(plant))["blade_temp_k"].copy()
+    other = plant.default_action()
+    other.supply_temp_setpoint_k += 3.0
+    plant.step(np.full(plant.system.n_blade_groups, 40e3), 296.0, other)  # different inputs in every block
+
+    restored = plant.runner.deserialize_state(plant.runner.serialize_state(state), time=state.time)  # a checkpoint
+    plant.restore_state(restored)
+    for name, values in saved_inputs.items():
+        np.testing.assert_array_equal(plant.inp[name], values, err_msg=name)
+    np.testing.assert_array_equal(plant.step(*_own_inputs(plant))["blade_temp_k"], ahead)
 
 
 def test_raw_and_list_api_agree(plant):

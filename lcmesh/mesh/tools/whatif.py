@@ -126,7 +126,7 @@ def _action_dict(action: PlantAction) -> dict[str, np.ndarray]:
 
 
 class _restored:
-    """Saves the FMU state, the plant's input views and step count; puts all three back on exit."""
+    """Saves the FMU state (its inputs with it) and the step count; puts both back on exit."""
 
     def __init__(self, plant: Plant):
         self.plant = plant
@@ -134,7 +134,6 @@ class _restored:
     def __enter__(self):
         p = self.plant
         self.state = p.save_state()
-        self.inputs = {name: np.array(view) for name, view in p.inp.items()}
         self.n_steps_done = p.n_steps_done
         return self.state
 
@@ -144,6 +143,4 @@ class _restored:
             p.restore_state(self.state)
         finally:
             p.free_state(self.state)
-        for name, saved in self.inputs.items():
-            p.inp[name][...] = saved
         p.n_steps_done = self.n_steps_done

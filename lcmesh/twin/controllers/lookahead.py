@@ -119,8 +119,7 @@ class LookaheadController:
     def _decide(self, k: int) -> tuple[float, float, float]:
         plant = self.plant
         horizon = min(self.horizon_steps, self.trace.n_steps - k)
-        inputs = {name: view.copy() for name, view in plant.inp.items()}
-        n_done, start = plant.n_steps_done, plant.save_state()
+        n_done, start = plant.n_steps_done, plant.save_state()  # the state carries the inputs too
         costs: dict[tuple[float, float, float], float] = {}
 
         def cost(setting: tuple[float, float, float]) -> float:
@@ -145,8 +144,6 @@ class LookaheadController:
             plant.restore_state(start)
             plant.free_state(start)
             plant.n_steps_done = n_done
-            for name, values in inputs.items():
-                plant.inp[name][...] = values
         self.last_costs = costs
         return best
 

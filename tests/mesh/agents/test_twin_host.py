@@ -1,11 +1,15 @@
-"""The Sensor's twin host on the real FMU: what its plant states say about the wet bulb, faults numbered from 1."""
+"""The Sensor's twin host on the real FMU: what its plant states say about the wet bulb, faults numbered from 1,
+what a resumed host holds."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from lcmesh.mesh.agents.twin_host import TwinHost
+from lcmesh.mesh.history import Checkpoint
 from lcmesh.mesh.messages import FaultRequest
+from lcmesh.mesh.tools import whatif
 
 
 @pytest.fixture
@@ -31,3 +35,29 @@ def test_fault_requests_count_from_one(lcopt_host):
         lcopt_host.inject_fault(FaultRequest(kind="valve_stuck", cabinet=6))
     with pytest.raises(ValueError, match="greater than or equal to 1"):
         FaultRequest(kind="valve_stuck", cabinet=0)
+
+
+def test_a_resumed_host_holds_the_inputs_of_the_checkpointed_step(lcopt_host):
+    action = lcopt_host.plant.default_action()
+    lcopt_host.begin(action, spinup_hours=0.0)
+    for _ in range(4):
+        lcopt_host.advance(action)
+    action.supply_temp_setpoint_k += 1.5  # the last step applies a setpoint of its own
+    lcopt_host.advance(action)
+    blob, extra = lcopt_host.checkpoint(action)
+    checkpoint = Checkpoint(lcopt_host.run_id, lcopt_host.step, blob, extra)
+
+    resumed = TwinHost("lcopt-5", "frontier-2024-04-07", "lcopt", 2.0, instance_name="twin-host-resumed")
+    try:
+        resumed.resume(checkpoint)
+        for name, values in lcopt_host.plant.inp.items():
+            np.testing.assert_array_equal(resumed.plant.inp[name], values, err_msg=name)
+        # a what-if on the resumed host (it holds the plant's own inputs) predicts what the original's does
+        change = {"supply_temp_setpoint_k": 2.0}
+        ahead = whatif.one_step_whatif(lcopt_host.plant, change, steps=2)
+        again = whatif.one_step_whatif(resumed.plant, change, steps=2)
+        for name in ("baseline", "predicted"):
+            for output, values in ahead[name].items():
+                np.testing.assert_array_equal(again[name][output], values, err_msg=f"{name} {output}")
+    finally:
+        resumed.close()
