@@ -1,4 +1,4 @@
-"""lcmesh router, lcmesh agent ROLE, lcmesh demo, lcmesh bench mesh (the mesh issue).
+"""lcmesh router, lcmesh agent ROLE, lcmesh demo, lcmesh status, lcmesh stop, lcmesh bench mesh.
 
 Every command reads the ``LCMESH_*`` settings (lcmesh.mesh.settings); options given here win.
 """
@@ -93,6 +93,71 @@ def demo(
                               say=console.print))  # fmt: skip
 
 
+DataDirOpt = Annotated[Optional[Path], typer.Option(help="the mesh's data dir (default LCMESH_DATA_DIR or runs/mesh)")]
+
+
+@app.command("status")
+def status(
+    data_dir: DataDirOpt = None,
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="also write the status as JSON here")] = None,
+) -> None:
+    """What runs for a data dir: the demo, every process with its uptime, the ports, the plant's last step.
+
+    Exit 0 while something runs, 3 when nothing does (as `systemctl status`)."""
+    from lcmesh.mesh.service import mesh_status
+
+    settings = _settings(data_dir=data_dir)
+    result = mesh_status(settings.data_dir, settings.history_file)
+    for line in _status_lines(result):
+        print(line)
+    if json_out is not None:
+        write_json(json_out, result)
+    raise typer.Exit(0 if result["running"] else 3)
+
+
+def _status_lines(result: dict) -> list[str]:
+    lines = [f"mesh in {result['data_dir']}: {'running' if result['running'] else 'not running'}"]
+    demo = result["demo"]
+    if demo is not None:
+        state = "running" if demo["running"] else "gone"
+        lines.append(f"  demo pid {demo['pid']} ({state}), started {demo['started_at'][:19]} UTC: {demo['system']} on "
+                     f"{demo['trace']}, controller {demo['controller']}")  # fmt: skip
+    for name, port in result["ports"].items():
+        holder = f"listening, pid {port['pid']}" if port["listening"] else "free"
+        lines.append(f"  {name} port {port['port']}: {holder}")
+    plant = result["plant"]
+    if plant and "error" in plant:
+        lines.append(f"  plant: {plant['error']}")
+    elif plant and plant["step"] is not None:
+        ended = ", ended" if plant["ended"] else ""
+        lines.append(f"  plant: run {plant['run_id']}, step {plant['step']} ({plant['time_s'] / 3600:.2f} h of plant "
+                     f"time){ended}")  # fmt: skip
+    for proc in result["processes"]:
+        lines.append(f"  pid {proc['pid']:>7}  {proc['role']:<14} up {proc['uptime_s']:.0f} s")
+    if "note" in result:
+        lines.append(f"  note: {result['note']}")
+    return lines
+
+
+@app.command("stop")
+def stop(
+    data_dir: DataDirOpt = None,
+    timeout: Annotated[float, typer.Option(help="seconds for a clean stop before what is left is killed")] = 60.0,
+) -> None:
+    """Stop the mesh of a data dir cleanly (the demo stops its agents, then its router); kill what is left."""
+    from lcmesh.mesh.service import mesh_processes, read_run_file, stop_mesh
+
+    settings = _settings(data_dir=data_dir)
+    run = read_run_file(settings.data_dir)
+    if (run is None or not run.demo_running()) and not mesh_processes(settings.data_dir):
+        print(f"nothing runs for {settings.data_dir.resolve()}")
+        raise typer.Exit(0)
+    left = stop_mesh(settings.data_dir, timeout_s=timeout, say=print)
+    if left:
+        fail("still running: " + ", ".join(f"{p.role} pid {p.pid}" for p in left))
+    print(f"stopped the mesh in {settings.data_dir.resolve()}")
+
+
 @bench_app.command("mesh")
 def bench_mesh(
     json_out: JsonOpt = None,
@@ -110,3 +175,15 @@ def bench_mesh(
 
         update_benchmarks_md(markdown, "mesh", result, render=render_mesh)
         console.print(f"updated {markdown}")
+
+
+@bench_app.command("lifecycle")
+def bench_lifecycle(
+    json_out: JsonOpt = None,
+    markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+) -> None:
+    """How the demo stops on SIGHUP/SIGINT/SIGTERM/SIGKILL, an orchestrator's death, and a second start refused."""
+    from lcmesh.bench.lifecycle import render_lifecycle, run_bench_lifecycle
+    from lcmesh.cli.common import write_bench
+
+    write_bench(json_out, markdown, "lifecycle", run_bench_lifecycle(say=console.print), render=render_lifecycle)

@@ -1,9 +1,16 @@
-"""``lcmesh demo``: a router and every agent as processes, on the Frontier day, until Ctrl-C.
+"""``lcmesh demo``: a router and every agent as processes, on the Frontier day, until stopped.
 
 The demo process starts the router and the Orchestration agent (which starts and supervises the
 others), restarts either if it dies, prints agent events as they happen, and on Ctrl-C (or
-SIGTERM, or after ``duration_s``) stops the orchestrator (which stops its agents in reverse
-order), then the router, then anything a killed orchestrator left behind (its pid files).
+SIGTERM, SIGHUP from a closed terminal, ``lcmesh stop``, or after ``duration_s``) stops the
+orchestrator (which stops its agents), then the router, then anything a killed orchestrator left
+behind (its pid files). Should the demo itself be killed, its children end with it (they are tied
+to it: ``processes.tie_to_parent``).
+
+Before starting it refuses, with a message naming the process and how to stop it, a data dir whose
+mesh still runs and router or UI ports that another process holds; a router that later finds its
+port taken ends the demo the same way instead of being restarted in a loop. ``DATA_DIR/mesh.json``
+says what runs (``lcmesh status``).
 """
 
 from __future__ import annotations
@@ -25,10 +32,18 @@ from lcmesh.mesh.processes import (
     Child, agent_child, child_env, read_pidfile, router_child, same_process, tcp_host_port, wait_for_port,
 )  # fmt: skip
 from lcmesh.mesh.security import ensure_secrets, private_dir
+from lcmesh.mesh.service import (
+    EXIT_BUSY, busy_reason, new_run_file, port_held_message, remove_run_file, write_run_file,
+)  # fmt: skip
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.demo")
 ORCHESTRATOR_GRACE_S = 5.0  # token gone this long with the router reachable: the orchestrator is hung
+ROUTER_CANNOT_LISTEN = 3  # lcmesh.mesh.router's exit code when its endpoint can not be opened
+
+
+class MeshBusy(RuntimeError):
+    """The data dir or a port is held by another process; the message names it and how to stop it."""
 
 
 class Demo:
@@ -44,6 +59,23 @@ class Demo:
         self._orchestrator_lost_at: float | None = None
         self._link_up_since: float | None = None
 
+    def ports(self) -> dict[int, str]:
+        """The TCP ports this mesh listens on: {port: what}."""
+        s = self.settings
+        ports = {}
+        for endpoint in s.listen_endpoints:
+            if endpoint.startswith("tcp/"):
+                ports[tcp_host_port(endpoint)[1]] = "the router"
+        if "ui" in s.orchestration.roles and unavailable_reason("ui") is None:
+            ports[s.ui_port] = "the UI"
+        return ports
+
+    def check_free(self) -> None:
+        """MeshBusy if this data dir's mesh still runs or another process holds one of the ports."""
+        reason = busy_reason(self.settings.data_dir, self.ports())
+        if reason is not None:
+            raise MeshBusy(reason)
+
     def start(self) -> None:
         s = self.settings
         private_dir(s.data_dir)  # history, config, logs and secrets: the run's owner only
@@ -58,6 +90,7 @@ class Demo:
             raise BusError(f"the router did not open {s.listen_endpoints[0]}:\n{tail}")
         self.orchestrator = agent_child("orchestration", "orchestration", self.env, s.log_dir / "orchestration.log")
         self.orchestrator.start()
+        self._write_run_file()
         try:
             self.bus = Bus.connect(s, "demo", timeout_s=10.0)
             self.bus.subscribe(keys.events(s.site), AgentEvent, self._on_event)
@@ -103,9 +136,24 @@ class Demo:
         for name in ("router", "orchestrator"):
             child = getattr(self, name)
             if child is not None and not child.running():
-                self.say(f"{name} exited with code {child.popen.returncode}; restarting\n{child.log_tail(8)}")
+                code = child.popen.returncode
+                if name == "router" and code == ROUTER_CANNOT_LISTEN:
+                    port = tcp_host_port(self.settings.listen_endpoints[0])[1]
+                    held = port_held_message(port, "the router")
+                    raise MeshBusy(held or f"the router can not listen on {self.settings.listen_endpoints[0]}:\n"
+                                   f"{child.log_tail(8)}")  # fmt: skip
+                self.say(f"{name} exited with code {code}; restarting\n{child.log_tail(8)}")
                 child.start()
                 self.restarts["router" if name == "router" else "orchestration"] += 1
+                self._write_run_file()
+
+    def _write_run_file(self) -> None:
+        s = self.settings
+        ui = f"http://{s.ui_host}:{s.ui_port}" if s.ui_port in self.ports() else None
+        write_run_file(s.data_dir, new_run_file(
+            s.data_dir, router_endpoint=s.listen_endpoints[0], ui_url=ui, system=s.system, trace=s.trace,
+            controller=s.controller, router_pid=self.router.pid if self.router else None,
+            orchestrator_pid=self.orchestrator.pid if self.orchestrator else None))  # fmt: skip
 
     def _orchestrator_hung(self, lost_at: float) -> bool:
         """Its token has been gone for ORCHESTRATOR_GRACE_S while our own link to the router was up all along.
@@ -133,11 +181,12 @@ class Demo:
             _kill(pid)
         if self.router is not None:
             self.router.stop(timeout_s=timeout)
+        remove_run_file(self.settings.data_dir, os.getpid())
 
 
 def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes: dict | None = None,
              resume: bool = False, say: Callable[[str], None] = print) -> int:  # fmt: skip
-    """Run until Ctrl-C/SIGTERM (or `duration_s` > 0 seconds); 0 on a clean stop.
+    """Run until Ctrl-C/SIGTERM/SIGHUP (or `duration_s` > 0 seconds); 0 on a clean stop, 3 if busy.
 
     A new run of the plant starts unless `resume` (then the Sensor continues the last unfinished
     run of the same system and trace from its checkpoint).
@@ -147,14 +196,20 @@ def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes:
     otherwise win over the settings that only seed its first version.
     """
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # a closed terminal or dropped SSH session sends SIGHUP: the same clean stop as Ctrl-C
+    stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in stop_signals}
+    # one absolute data dir for every child and for `lcmesh status` (a relative one depends on each one's cwd)
+    settings = settings.model_copy(update={"data_dir": settings.data_dir.resolve()})
     demo = Demo(settings, say)
-    if not resume and settings.history_file.exists():
-        writer = HistoryWriter(settings.history_file)
-        if writer.end_open_runs():
-            say("starting a new run (--resume continues the last one)")
-        writer.close()
+    busy = None
     try:
+        demo.check_free()  # before touching the history another mesh may be writing
+        if not resume and settings.history_file.exists():
+            writer = HistoryWriter(settings.history_file)
+            if writer.end_open_runs():
+                say("starting a new run (--resume continues the last one)")
+            writer.close()
         demo.start()
         ui = unavailable_reason("ui")
         with_ui = ui is None and "ui" in settings.orchestration.roles
@@ -171,11 +226,17 @@ def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes:
             demo.watch()
             if deadline is not None and time.monotonic() > deadline:
                 break
+    except MeshBusy as exc:
+        busy = str(exc)
     finally:
-        say("stopping the mesh ...")
-        demo.stop()
+        if busy is None or demo.router is not None:
+            say("stopping the mesh ...")
+            demo.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    if busy is not None:
+        say(f"lcmesh demo can not run: {busy}")
+        return EXIT_BUSY
     say("stopped")
     return 0
 

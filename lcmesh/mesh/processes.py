@@ -2,11 +2,14 @@
 
 Children run in a new session (their own process group), so Ctrl-C in a terminal reaches the
 parent only and the parent stops them in order; ``stop`` sends SIGTERM, waits, then SIGKILLs
-the whole group so nothing is left behind.
+the whole group so nothing is left behind. A child also ends when its parent dies however it dies
+(SIGKILL included): it calls ``tie_to_parent`` first thing, which asks the kernel for a SIGTERM on
+the parent's death (``prctl(PR_SET_PDEATHSIG)``); its own handler then stops it cleanly.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import socket
@@ -15,6 +18,9 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+PARENT_PID_ENV = "LC_MESH_PARENT_PID"  # each child's parent pid (not LCMESH_: it is no setting)
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 @dataclass
@@ -36,7 +42,8 @@ class Child:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         log = open(self.log_path, "ab", buffering=0)
         try:
-            self.popen = subprocess.Popen(self.argv, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+            env = {**self.env, PARENT_PID_ENV: str(os.getpid())}
+            self.popen = subprocess.Popen(self.argv, env=env, stdout=log, stderr=subprocess.STDOUT,
                                           stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
         finally:
             log.close()
@@ -83,6 +90,25 @@ class Child:
         except OSError:
             return ""
         return "\n".join(lines[-n_lines:])
+
+
+def tie_to_parent(sig: int = signal.SIGTERM) -> bool:
+    """Have the kernel send `sig` to this process when the parent that started it as a ``Child`` dies.
+
+    The parent is named by ``LC_MESH_PARENT_PID`` (absent: started by hand or by a service manager, nothing to
+    do). If the parent already died before this call, the signal is sent now. Linux only; elsewhere a no-op.
+    The kernel ties the signal to the parent *thread* that forked: `Child.start` is only called from threads
+    that live as long as their children (the demo's main thread, the orchestrator's supervise thread).
+    """
+    expected = os.environ.pop(PARENT_PID_ENV, None)
+    if not expected or not sys.platform.startswith("linux"):
+        return False
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0) != 0:
+        return False
+    if os.getppid() != int(expected):  # the parent died between our fork and the prctl
+        os.kill(os.getpid(), sig)
+    return True
 
 
 def child_env(base: dict[str, str] | None = None, **overrides: str) -> dict[str, str]:

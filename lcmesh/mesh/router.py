@@ -26,6 +26,10 @@ def run_router(settings: MeshSettings | None = None) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    held = [m for m in map(_held, settings.listen_endpoints) if m]
+    if held:  # zenoh's own error says only "Address already in use"; name the holder and how to stop it
+        log.error("the router can not listen: %s", "; ".join(held))
+        return 3
     try:
         bus = Bus.open_router(settings)
     except BusError as exc:
@@ -33,11 +37,27 @@ def run_router(settings: MeshSettings | None = None) -> int:
         return 3
     peers = f", linked to {', '.join(settings.router_peers)}" if settings.router_peers else ""
     log.info("router listening on %s%s", ", ".join(settings.listen_endpoints), peers)
-    stop.wait()
+    # a timed wait: a signal that lands on one of zenoh's threads does not interrupt an untimed one, and the
+    # handler (which only runs on the main thread) would then wait for the next signal
+    while not stop.wait(0.5):
+        pass
     bus.close()
     log.info("router stopped")
     return 0
 
 
+def _held(endpoint: str) -> str | None:
+    """Who holds a tcp endpoint's port (None if free, or not tcp)."""
+    from lcmesh.mesh.processes import tcp_host_port
+    from lcmesh.mesh.service import port_held_message
+
+    if not endpoint.startswith("tcp/"):
+        return None
+    return port_held_message(tcp_host_port(endpoint)[1], "the router")
+
+
 if __name__ == "__main__":
+    from lcmesh.mesh.processes import tie_to_parent
+
+    tie_to_parent()  # started by a demo: end with it, however it ends
     sys.exit(run_router())

@@ -10,6 +10,7 @@ import sys
 
 from lcmesh.mesh.agents.registry import ROLES
 from lcmesh.mesh.agents.runner import run_agent
+from lcmesh.mesh.processes import tie_to_parent
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -17,6 +18,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("role", choices=sorted(ROLES))
     parser.add_argument("--id", dest="agent_id", default=None, help="agent id (default: the role)")
     args = parser.parse_args(argv)
+    tie_to_parent()  # started by an orchestrator: end with it, however it ends
     return run_agent(args.role, agent_id=args.agent_id)
 
 

@@ -186,7 +186,10 @@ def _bind(host: str, port: int) -> socket.socket:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(address)
     except OSError as exc:
-        raise OSError(f"the UI can not listen on {host}:{port} ({exc}); set LCMESH_UI_HOST / LCMESH_UI_PORT "
+        from lcmesh.mesh.service import port_held_message
+
+        held = port_held_message(port, "the UI")
+        raise OSError(f"the UI can not listen on {host}:{port} ({held or exc}); set LCMESH_UI_HOST / LCMESH_UI_PORT "
                       "or stop what holds the port") from None
     sock.set_inheritable(True)
     return sock

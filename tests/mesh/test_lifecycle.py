@@ -1,0 +1,77 @@
+"""The mesh starts and stops like a service: real `lcmesh demo` process trees on free loopback ports.
+
+However the demo is stopped (a closed terminal's SIGHUP, Ctrl-C, `lcmesh stop`'s SIGTERM, a SIGKILL
+of the demo alone), no process of its data dir is left and its ports are free; a killed orchestrator
+takes its agents with it; a second demo on the same ports or data dir is refused with the holder's
+pid and data dir, not looped on. The seconds each takes are `lcmesh bench lifecycle`'s figures:
+here the limits are liveness limits for a busy machine.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+
+import pytest
+
+from lcmesh.bench.lifecycle import (
+    LCMESH, ROLES, orchestrator_kill_trial, signal_trial, stale_trial, start_demo, stop_everything,
+)  # fmt: skip
+from lcmesh.mesh.service import mesh_processes, read_run_file
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGINT, signal.SIGKILL], ids=lambda s: s.name)
+def test_a_stopped_demo_leaves_no_process_and_no_port(tmp_path, sig):
+    run = start_demo(tmp_path / "mesh", ROLES + ("ui",) if sig == signal.SIGKILL else ROLES)
+    try:
+        trial = signal_trial(run, sig)
+    finally:
+        stop_everything(run)
+    assert trial["left"] == [] and trial["ports_still_listening"] == [], trial
+    if sig != signal.SIGKILL:
+        assert trial["exit_code"] == 0 and run.text().rstrip().endswith("stopped"), run.text()
+        assert read_run_file(run.data_dir) is None, "a clean stop removes mesh.json"
+
+
+def test_status_stale_start_orchestrator_death_and_stop(tmp_path):
+    run = start_demo(tmp_path / "mesh")
+    try:
+        status = subprocess.run([LCMESH, "status", "--data-dir", str(run.data_dir), "--json", str(tmp_path / "s.json")],
+                                capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert status.returncode == 0, status.stdout + status.stderr
+        assert f"demo pid {run.popen.pid} (running)" in status.stdout and f"router port {run.port}: listening" in \
+            status.stdout, status.stdout  # fmt: skip
+        assert {"router", "orchestration", "demo", *ROLES} <= {p.role for p in mesh_processes(run.data_dir)}
+
+        stale = stale_trial(run, tmp_path / "second")
+        assert stale["exit_code"] == 3 and stale["names_pid_and_data_dir"], stale
+        assert "lcmesh stop --data-dir" in stale["message"], stale
+        same_dir = subprocess.run([LCMESH, "demo", "--port", "1", "--data-dir", str(run.data_dir)], capture_output=True,
+                                  text=True, timeout=120)  # fmt: skip
+        said = " ".join((same_dir.stdout + same_dir.stderr).split())
+        assert same_dir.returncode == 3 and f"a mesh already runs for {run.data_dir}: demo pid {run.popen.pid}" in said
+
+        orchestrator = orchestrator_kill_trial(run)
+        assert orchestrator["agents_before"] == len(ROLES) and orchestrator["left"] == [], orchestrator
+
+        trial = signal_trial(run, signal.SIGTERM)  # through `lcmesh stop`
+        assert trial["left"] == [] and trial["ports_still_listening"] == [] and trial["exit_code"] == 0, trial
+    finally:
+        stop_everything(run)
+    after = subprocess.run([LCMESH, "status", "--data-dir", str(run.data_dir)], capture_output=True, text=True,
+                           timeout=60)  # fmt: skip
+    assert after.returncode == 3 and "not running" in after.stdout, after.stdout
+
+
+def test_a_port_held_by_another_program_is_named(tmp_path):
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        router = subprocess.run([LCMESH, "router", "--listen", f"tcp/127.0.0.1:{port}"], capture_output=True,
+                                text=True, timeout=60)  # fmt: skip
+    said = " ".join((router.stdout + router.stderr).split())
+    assert router.returncode == 3 and f"port {port} (the router) is held by pid" in said and \
+        "not an lc-mesh process" in said, said  # fmt: skip
