@@ -14,8 +14,11 @@ and resets once it has run for ``healthy_after_s``. A role whose module does not
 It acts only on processes it started itself or adopted from its predecessor's pid files, each
 checked by pid and start time (a recycled pid is not the agent), never on a pid a bus message
 names: a stats message with another pid for a supervised agent id is counted and reported, not
-acted on. A restarted orchestrator adopts the agents still alive (its predecessor's pid files, the
-tokens a liveliness query finds) instead of starting duplicates. With
+acted on. Its agents are tied to it (``processes.tie_to_parent``): when it dies, however it dies,
+they get SIGTERM and stop, so a killed orchestrator leaves no orphan and its successor starts them
+afresh (the Sensor resumes its run from the checkpoint). One that outlived it all the same (stopped,
+or still on its way out) is adopted from its predecessor's pid files and the tokens a liveliness
+query finds, never duplicated. With
 ``supervise = false`` (docker compose, where the container engine restarts) it only watches and
 reports.
 """
