@@ -14,6 +14,7 @@ from __future__ import annotations
 import atexit
 import json
 import logging
+import math
 import threading
 import time
 import weakref
@@ -27,6 +28,7 @@ import zenoh
 from pydantic import BaseModel, ValidationError
 
 from lcmesh.mesh import security
+from lcmesh.mesh.ratelimit import TokenBuckets
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.bus")
@@ -72,13 +74,14 @@ class Declared:
 
 
 class Counters:
-    """Per-key message counts, invalid payloads, handler errors and processing latency (thread-safe)."""
+    """Per-key message counts, invalid payloads, rate-limited queries, handler errors and latency (thread-safe)."""
 
     def __init__(self, latency_window: int = 2000):
         self._lock = threading.Lock()
         self.msgs_in: dict[str, int] = defaultdict(int)
         self.msgs_out: dict[str, int] = defaultdict(int)
         self.invalid: dict[str, int] = defaultdict(int)
+        self.rate_limited: dict[str, int] = defaultdict(int)
         self.handler_errors = 0
         self._latency_ms: deque[float] = deque(maxlen=latency_window)
 
@@ -99,7 +102,7 @@ class Counters:
             lat = np.array(self._latency_ms) if self._latency_ms else None
             return {
                 "msgs_in": dict(self.msgs_in), "msgs_out": dict(self.msgs_out), "invalid": dict(self.invalid),
-                "handler_errors": self.handler_errors,
+                "rate_limited": dict(self.rate_limited), "handler_errors": self.handler_errors,
                 "latency_ms_p50": float(np.percentile(lat, 50)) if lat is not None else None,
                 "latency_ms_p99": float(np.percentile(lat, 99)) if lat is not None else None,
             }  # fmt: skip
@@ -338,21 +341,36 @@ class Bus:
         return subscriber
 
     # --- queries ------------------------------------------------------------------------------
-    def serve(self, key: str, handler: Callable[[bytes | None], BaseModel | None]) -> Declared:
-        """Answer GETs on `key` with `handler(payload)`'s JSON; QueryError or any failure becomes an error reply."""
+    def serve(self, key: str, handler: Callable[[bytes | None], BaseModel | None], *,
+              limit: TokenBuckets | None = None) -> Declared:  # fmt: skip
+        """Answer GETs on `key` with `handler(payload)`'s JSON; QueryError or any failure becomes an error reply.
+
+        With `limit`, a query over its rate is answered with an error that says when to retry (counted in
+        ``counters.rate_limited``), and the handler does not run.
+        """
 
         def raw(payload: bytes | None) -> bytes | None:
             result = handler(payload)
             return None if result is None else result.model_dump_json().encode()
 
-        return self.serve_raw(key, raw)
+        return self.serve_raw(key, raw, limit=limit)
 
-    def serve_raw(self, key: str, handler: Callable[[bytes | None], bytes | None]) -> Declared:
+    def serve_raw(self, key: str, handler: Callable[[bytes | None], bytes | None], *,
+                  limit: TokenBuckets | None = None) -> Declared:  # fmt: skip
         name = self.short(key)
 
         def on_query(query) -> None:
             try:
                 self.counters.count(self.counters.msgs_in, name)
+                # one bucket per queryable: zenoh hands a queryable no authenticated asker (a query's
+                # source_info, when there is one, is what the asking session says about itself)
+                wait_s = limit.take(name) if limit is not None else 0.0
+                if wait_s > 0:
+                    self.counters.count(self.counters.rate_limited, name)
+                    retry_s = math.ceil(wait_s * 10) / 10  # never "retry in 0.0 s"
+                    query.reply_err(f"rate limited: {limit.rate_per_s:g} queries/s for {name}; retry in "
+                                    f"{retry_s:.1f} s".encode())  # fmt: skip
+                    return
                 payload = query.payload.to_bytes() if query.payload is not None else None
                 try:
                     answer = handler(payload)

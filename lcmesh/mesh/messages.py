@@ -181,6 +181,7 @@ class AgentStats(Message):
     msgs_in: dict[str, int] = {}
     msgs_out: dict[str, int] = {}
     invalid: dict[str, int] = {}
+    rate_limited: dict[str, int] = {}  # queries answered "rate limited", per queryable
     handler_errors: int = 0
     latency_ms_p50: float | None = None
     latency_ms_p99: float | None = None

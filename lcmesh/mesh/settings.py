@@ -73,6 +73,11 @@ class SensorConfig(_Component):
     )
     resume: bool = Field(True, description="continue an unfinished run of the same system and trace from history")
     loop: str = Field("plant", pattern=NAME_PATTERN, description="control loop whose proposals it applies")
+    # a what-if holds the twin while it runs (the longest, 2880 steps twice, ~0.2 s): at 1 a second for each of
+    # the two what-if tools a flood holds it at most ~0.4 s a second; a chat answer's few what-ifs fit the burst
+    tools_rate_per_s: float = Field(1.0, gt=0, le=10_000, description="queries a second each tools/{name} "
+                                    "queryable answers once its burst is spent; more get 'rate limited'")  # fmt: skip
+    tools_burst: int = Field(10, ge=1, le=100_000, description="queries each tools/{name} queryable answers at once")
 
 
 class ControlConfig(_Component):

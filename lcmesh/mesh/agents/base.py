@@ -22,6 +22,7 @@ from lcmesh.mesh import keys
 from lcmesh.mesh.bus import Bus, Declared
 from lcmesh.mesh.history import HistoryReader
 from lcmesh.mesh.messages import AgentEvent, AgentStats, ConfigDoc, MeshConfig
+from lcmesh.mesh.ratelimit import TokenBuckets
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.agents")
@@ -123,8 +124,8 @@ class Agent:
     def subscribe(self, key: str, model, handler: Callable, *, latest: bool = False) -> None:
         self._declared.append(self.bus.subscribe(key, model, handler, latest=latest))
 
-    def serve(self, key: str, handler: Callable) -> None:
-        self._declared.append(self.bus.serve(key, handler))
+    def serve(self, key: str, handler: Callable, *, limit: TokenBuckets | None = None) -> None:
+        self._declared.append(self.bus.serve(key, handler, limit=limit))
 
     def spawn(self, name: str, target: Callable[[], None]) -> threading.Thread:
         """Run `target` in a thread; an exception escaping it is reported and ends the agent."""

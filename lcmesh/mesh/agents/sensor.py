@@ -13,12 +13,12 @@ Sensor published for it; only the control role can publish proposals at all (the
 control, docs/mesh.md, Security).
 
 It also hosts the toolbox queryables (``tools/{name}``, serialized with stepping by the twin's
-lock) and the commands ``cmd/{agent_id}/inject_fault`` and ``cmd/{agent_id}/status``.
+lock, each limited to ``tools_rate_per_s`` queries a second after a burst of ``tools_burst``) and the
+commands ``cmd/{agent_id}/inject_fault`` and ``cmd/{agent_id}/status``.
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 import threading
 import time
@@ -32,6 +32,8 @@ from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import (
     ActionModel, AppliedAction, CommandReply, FaultRequest, MeshConfig, PlantState, Proposal, utc_now,
 )  # fmt: skip
+from lcmesh.mesh.ratelimit import TokenBuckets
+from lcmesh.mesh.tools import registry
 from lcmesh.mesh.tools.guardrails import Clamp, apply_guardrails
 from lcmesh.mesh.tools.maintenance import ValveExercise
 from lcmesh.twin.controllers.g36 import G36Controller
@@ -44,6 +46,7 @@ LARGE_PAYLOAD_EVERY = 40
 
 class SensorAgent(Agent):
     role = "sensor"
+    clock = time.monotonic  # of the tools' rate limits (a test sets its own)
 
     def __init__(self, settings, agent_id: str | None = None):
         super().__init__(settings, agent_id)
@@ -59,8 +62,6 @@ class SensorAgent(Agent):
                       "valve_strokes": 0}  # fmt: skip
         self._exercise: ValveExercise | None = None
         self._exercise_period = 0.0
-        self._tools_declared = False
-        self._next_tools_poll = 0.0
 
     # --- lifecycle ------------------------------------------------------------------------------
     def on_start(self) -> None:
@@ -157,17 +158,10 @@ class SensorAgent(Agent):
 
     # --- toolbox queryables --------------------------------------------------------------------------
     def _declare_tools(self) -> None:
-        """Serve every toolbox tool once the colleague's registry imports; retried from the loop until then."""
-        if self._tools_declared or time.monotonic() < self._next_tools_poll:
-            return
-        self._next_tools_poll = time.monotonic() + 5.0
-        try:
-            registry = importlib.import_module("lcmesh.mesh.tools.registry")
-        except ImportError as exc:
-            log.info("toolbox registry not available yet (%s); will retry", exc)
-            return
+        """Serve the twin's toolbox tools (physics and what-ifs), each queryable with its own token bucket."""
         context = registry.ToolContext(system=self.twin.system, plant=self.twin.plant, lock=self.twin.lock,
                                        latest_out=self.twin.plant.out)  # fmt: skip
+        limit = TokenBuckets(self.cfg.tools_rate_per_s, self.cfg.tools_burst, clock=self.clock)
         for name in registry.served_tools(data=False):
 
             def answer(payload: bytes | None, name=name):
@@ -177,8 +171,7 @@ class SensorAgent(Agent):
                     raise QueryError(result.error)
                 return result
 
-            self.serve(keys.tool(self.site, name), answer)
-        self._tools_declared = True
+            self.serve(keys.tool(self.site, name), answer, limit=limit)
 
     # --- the control loop -------------------------------------------------------------------------------
     def _loop(self) -> None:
@@ -195,7 +188,6 @@ class SensorAgent(Agent):
                 self.tally["late_periods"] += 1
             state = self._one_step(state, period, late_s)
             next_tick = max(next_tick + period, time.monotonic() - period)
-            self._declare_tools()
 
     def _one_step(self, state: PlantState, period: float, late_s: float) -> PlantState:
         twin = self.twin

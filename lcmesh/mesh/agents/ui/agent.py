@@ -32,6 +32,7 @@ from lcmesh.mesh.messages import (
     AgentEvent, AgentStats, Alert, AppliedAction, ConfigDoc, Explanation, MeshConfig, MonitorReport, PlantState,
     utc_now,
 )  # fmt: skip
+from lcmesh.mesh.ratelimit import TokenBuckets
 from lcmesh.mesh.tools import registry
 from lcmesh.twin.system import load_system
 
@@ -129,8 +130,10 @@ class UiAgent(Agent):
                 "phraser_note": ctx.phraser_note}  # fmt: skip
 
     def _serve_data_tools(self, sources: ChatSources) -> None:
-        """The operator's data tools on ``tools/{name}``: the registry the chat plans with, for anyone on the bus."""
+        """The operator's data tools on ``tools/{name}``: the registry the chat plans with, for anyone on the bus,
+        each queryable with its own token bucket (history reads are cheap, but not free)."""
         context = registry.ToolContext(system=sources.system, data=sources)
+        limit = TokenBuckets(self.ui.tools_rate_per_s, self.ui.tools_burst)
         for name in registry.served_tools(data=True):
 
             def answer(payload: bytes | None, name=name):
@@ -139,7 +142,7 @@ class UiAgent(Agent):
                     raise QueryError(result.error)
                 return result
 
-            self.serve(keys.tool(self.site, name), answer)
+            self.serve(keys.tool(self.site, name), answer, limit=limit)
 
     # --- data sources --------------------------------------------------------------------------------
     def history_reader(self) -> HistoryReader:

@@ -50,6 +50,9 @@ class UiSettings(BaseSettings):
     decisions_kept: int = Field(500, ge=10, description="recent decisions and explanations held in memory")
     history_max_points: int = Field(5000, ge=10, le=200_000, description="most rows one /api/history answer holds")
     bus_timeout_s: float = Field(3.0, gt=0, le=60, description="wait this long for a queryable (config, tools)")
+    tools_rate_per_s: float = Field(5.0, gt=0, le=10_000, description="queries a second each data tool's "
+                                    "tools/{name} answers after its burst; more get 'rate limited'")  # fmt: skip
+    tools_burst: int = Field(20, ge=1, le=100_000, description="queries each data tool's queryable answers at once")
 
     @field_validator("cors_origins", "allowed_hosts", mode="before")
     @classmethod

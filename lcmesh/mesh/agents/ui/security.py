@@ -20,11 +20,10 @@ import ipaddress
 import os
 import secrets
 import stat
-import threading
-import time
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+
+from lcmesh.mesh.ratelimit import TokenBuckets
 
 MIN_TOKEN_CHARS = 16
 DEFAULT_TOKENS = frozenset({
@@ -175,26 +174,8 @@ def _bracketed(host: str) -> str:
     return f"[{host}]" if ":" in host and not host.startswith("[") else host
 
 
-class RateLimiter:
-    """A token bucket per client: `burst` requests at once, refilled at `rate_per_min`."""
+class RateLimiter(TokenBuckets):
+    """The chat's token bucket per client: `burst` requests at once, refilled at `rate_per_min`."""
 
     def __init__(self, rate_per_min: float, burst: int, max_clients: int = 10_000):
-        self.rate_per_s, self.burst, self.max_clients = rate_per_min / 60.0, float(burst), max_clients
-        self._buckets: OrderedDict[str, tuple[float, float]] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def take(self, client: str) -> float:
-        """0 if `client` may go now (a token is spent), else the seconds until it may."""
-        now = time.monotonic()
-        with self._lock:
-            tokens, stamp = self._buckets.pop(client, (self.burst, now))
-            tokens = min(self.burst, tokens + (now - stamp) * self.rate_per_s)
-            wait = 0.0
-            if tokens >= 1.0:
-                tokens -= 1.0
-            else:
-                wait = (1.0 - tokens) / self.rate_per_s
-            self._buckets[client] = (tokens, now)
-            while len(self._buckets) > self.max_clients:
-                self._buckets.popitem(last=False)
-        return wait
+        super().__init__(rate_per_min / 60.0, burst, max_keys=max_clients)
