@@ -2,7 +2,8 @@
 
 The days are declared here and nowhere else. Training uses ``TRAIN_SEEDS`` (0-999, lcmesh/twin/traces.py);
 the test and validation days come from the Frontier day and ``EVAL_SEEDS`` (1000-1999), and
-`assert_disjoint` proves no test day is a validation or training day.
+`assert_disjoint` proves no test day is a validation or training day, and that the tree distiller's default
+seeds (``lcmesh distill tree``: training, held-out and reward traces) run none of them.
 
 How the synthetic days were picked (once, deterministically; loads and wet bulbs of lcopt-5 under
 ``frontier``). Over seeds 1000-1040 the mean load is 1.05 +- 0.14 x design (design = the system's
@@ -50,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.bench.machine import machine_info
+from lcmesh.distill.tree_config import TreeDistillConfig
 from lcmesh.twin.controllers import Controller, make_controller
 from lcmesh.twin.kpi import cooling_energies_kwh
 from lcmesh.twin.plant import Plant
@@ -98,8 +100,21 @@ SUITE_HEADER = (
 )
 
 
+def held_out_days_in(traces: Iterable[str]) -> list[Day]:
+    """The test and validation days that run one of `traces`, under any scenario (the loads are the trace's)."""
+    traces = set(traces)
+    return [d for d in TEST_DAYS + VALIDATION_DAYS if d.trace in traces]
+
+
+def held_out_seeds() -> list[int]:
+    """The synthetic seeds of the test and validation days: no training or tuning run may use them."""
+    return sorted({int(d.trace.removeprefix("synthetic:")) for d in TEST_DAYS + VALIDATION_DAYS
+                   if d.trace.startswith("synthetic:")})  # fmt: skip
+
+
 def assert_disjoint() -> None:
-    """Raise if a test day is also a validation day, a training trace, or outside the evaluation split."""
+    """Raise if a test day is also a validation day, a training trace, outside the evaluation split, or a trace
+    the tree distiller runs by default."""
     test = {d.trace for d in TEST_DAYS}
     validation = {d.trace for d in VALIDATION_DAYS}
     if shared := test & validation:
@@ -111,6 +126,10 @@ def assert_disjoint() -> None:
     labels = [d.label for d in TEST_DAYS + VALIDATION_DAYS]
     if len(set(labels)) != len(labels):
         raise AssertionError(f"day labels must be unique, got {labels}")
+    try:
+        TreeDistillConfig()  # refuses seeds that run a held-out day
+    except ValueError as exc:
+        raise AssertionError(f"the tree distiller's defaults: {exc}") from None
 
 
 def days_named(labels: Iterable[str], pool: tuple[Day, ...] = TEST_DAYS) -> tuple[Day, ...]:

@@ -26,5 +26,7 @@ def test_bad_options_are_clear_errors(tmp_path):
     assert result.exit_code == 2 and "`case` must be one of" in result.output
     result = runner.invoke(app, ["distill", "tree", "--train-seeds", "a-b"])
     assert result.exit_code == 2 and "`train_seeds` must look like" in result.output
+    result = runner.invoke(app, ["distill", "tree", "--reward-seeds", "1010-1019"])
+    assert result.exit_code == 2 and "the bench suite's test or validation days" in result.output
     result = runner.invoke(app, ["twin", "run", "--controller", "ppo", "--policy", str(tmp_path / "none"), "--hours", "1"])
     assert result.exit_code == 2 and "lcmesh train ppo" in result.output

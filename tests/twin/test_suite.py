@@ -13,6 +13,7 @@ from lcmesh.bench.suite import (
     render_suite, run_suite,
 )  # fmt: skip
 from lcmesh.cli import app
+from lcmesh.distill.tree_config import TreeDistillConfig
 from lcmesh.twin.traces import EVAL_SEEDS, FRONTIER_DAY, TRAIN_SEEDS
 
 DAY_KEYS = {*FIGURES, "it_kwh", "travel"}
@@ -56,14 +57,32 @@ def test_the_declared_days_are_held_out_and_span_frontier_mild_and_hot_days():
     assert not {d.trace for d in TEST_DAYS} & {d.trace for d in VALIDATION_DAYS}
 
 
-@pytest.mark.parametrize("leak", ["validation", "training"])
+@pytest.mark.parametrize("leak", ["validation", "training", "tree distiller"])
 def test_assert_disjoint_catches_a_test_day_that_leaks(monkeypatch, leak):
     if leak == "validation":
         monkeypatch.setattr(suite, "VALIDATION_DAYS", (*VALIDATION_DAYS, Day("synthetic:1010", "frontier", "v")))
-    else:
+    elif leak == "training":
         monkeypatch.setattr(suite, "TEST_DAYS", (*TEST_DAYS, Day("synthetic:7", "frontier", "leak-7")))
+    else:  # a test day on one of the distiller's reward traces
+        monkeypatch.setattr(suite, "TEST_DAYS", (*TEST_DAYS, Day("synthetic:1105", "design-day", "leak-1105")))
     with pytest.raises(AssertionError, match=leak):
         suite.assert_disjoint()
+
+
+def test_the_tree_distillers_seeds_run_no_held_out_day():
+    seeds = TreeDistillConfig().trace_seeds()
+    assert set(seeds) == {"train_seeds", "heldout_seed", "reward_seeds"}
+    for field, values in seeds.items():
+        assert suite.held_out_days_in(f"synthetic:{s}" for s in values) == [], field
+    evaluation = seeds["heldout_seed"] + seeds["reward_seeds"]
+    assert all(s in EVAL_SEEDS for s in evaluation) and not set(evaluation) & set(seeds["train_seeds"])
+    assert len(seeds["reward_seeds"]) == 10  # Tables 12 and 14: 10 episodes
+    # the seeds the shipped trees were distilled with ran four test days' traces (two of them as the very day)
+    with pytest.raises(ValueError, match=r"`reward_seeds` must not run on the bench suite's test or validation "
+                       r"days, got mild-1010 \(synthetic:1010\), mild-1019 .*hot-1016 .*hot-1011"):  # fmt: skip
+        TreeDistillConfig(reward_seeds="1010-1019")
+    with pytest.raises(ValueError, match=r"`heldout_seed` .* got hot-1003 \(synthetic:1003\)"):
+        TreeDistillConfig(heldout_seed=1003)
 
 
 def test_an_unknown_day_label_names_the_closest_one():
