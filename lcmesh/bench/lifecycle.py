@@ -199,7 +199,11 @@ def run_bench_lifecycle(say: Callable[[str], None] = print, root: Path | None = 
 
 def render_lifecycle(result: dict) -> str:
     """The BENCHMARKS.md section."""
-    lines = [f"Targets: nothing left within {result['targets']['stop_s']:g} s of a stop, a stale start refused within "
+    m = result["machine"]
+    lines = ["## Lifecycle (`lcmesh bench lifecycle --json runs/bench/lifecycle.json --markdown BENCHMARKS.md`)", "",
+             f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}. One run.",
+             "",
+             f"Targets: nothing left within {result['targets']['stop_s']:g} s of a stop, a stale start refused within "
              f"{result['targets']['stale_s']:g} s (`lcmesh bench lifecycle`; real `lcmesh demo` process trees).", "",
              "| how the demo was stopped | processes | s until none left | left | ports still open | exit |",
              "|---|---|---|---|---|---|"]  # fmt: skip

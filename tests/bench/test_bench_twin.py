@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from lcmesh.cli import app
 
 
+@pytest.mark.slow  # a benchmark run (19 s); `make test-slow` and `lcmesh bench twin`
 def test_bench_twin_quick_writes_every_figure(tmp_path):
     out, md = tmp_path / "twin.json", tmp_path / "BENCHMARKS.md"
     md.write_text("# Benchmarks\n\nkept text\n")

@@ -68,6 +68,7 @@ def test_client_gets_the_same_greedy_text_as_the_local_backend(client, base_back
     assert remote.prompt_tokens == local.prompt_tokens
 
 
+@pytest.mark.slow  # end to end (23 s); the HTTP path: test_client_gets_the_same_greedy_text_as_the_local_backend
 def test_controller_over_http_decides_every_cabinet(client, plant, lcopt5):
     ctl = LlmController(lcopt5, backend=client, fallback="g36", period_steps=1, max_new_tokens=48,
                         decision_budget_s=SLOW_MACHINE_S)  # fmt: skip

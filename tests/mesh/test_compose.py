@@ -57,6 +57,7 @@ def _local(env: dict, port: int, data_dir: Path) -> dict:
     return {k: local(str(v)) for k, v in env.items()}
 
 
+@pytest.mark.slow  # a whole mesh of 8 processes (22 s); the compose file is checked above
 def test_the_compose_services_make_a_working_mesh(tmp_path):
     services = _lcmesh_services()
     port = free_port()

@@ -221,6 +221,7 @@ def test_sigkill_is_seen_and_recovered(mesh, agent_id):
     else:  # its agents end with it (tied to it: no orphan), and the new orchestrator starts them again
         assert wait_until(lambda: all(not _running(p) or _zombie(p) for p in others.values()), 30), others
         assert wait_until(lambda: all(mesh.alive(a) and mesh.pid(a) not in (None, others[a]) for a in others), 60)
+        assert wait_until(lambda: [a for t, a in mesh.applied if t >= t_kill], 60), "the new agents step the plant"
     if agent_id != "sensor":  # the plant kept stepping (each step's action in history: test_no_history_row_was_lost)
         with mesh.lock:
             times = [t for t, _ in mesh.applied if t >= t_kill]

@@ -165,6 +165,7 @@ def test_cli_twin_records_then_scores(tmp_path):
     assert res.exit_code == 2 and "`--level` must be one of" in res.output
 
 
+@pytest.mark.slow  # a benchmark run (17 s); the judge itself is tested above
 def test_bench_explain_quick_updates_its_section(tmp_path):
     md = tmp_path / "BENCHMARKS.md"
     md.write_text("# Benchmarks\n\n<!-- bench:twin:start -->\nkept\n<!-- bench:twin:end -->\n")

@@ -1,6 +1,6 @@
 """A real mesh on loopback for the UI tests: router, configuration, sensor, control, maintenance, monitor, UI.
 
-One mesh per test session (agents in-process, each on its own zenoh session; the FMU is real,
+One mesh for the UI tests (agents in-process, each on its own zenoh session; the FMU is real,
 history is a real SQLite file); the UI serves HTTP on a free loopback port. A second UI on an
 empty site of the same router answers what a UI says when the mesh is not ready.
 """
@@ -85,13 +85,15 @@ def running_mesh(data_dir, roles: tuple[str, ...] = MESH_ROLES, **ui_overrides):
         router.close()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def ui_mesh(tmp_path_factory):
+    # package scope: the plant steps at 300x while it runs, so it stops once the UI tests are done instead of
+    # burning CPU under every later test of the session
     with running_mesh(tmp_path_factory.mktemp("ui-mesh")) as mesh:
         yield mesh
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def empty_ui(ui_mesh, tmp_path_factory):
     """A UI on a site where nothing else runs (same router): the mesh is 'not ready' for it."""
     from lcmesh.mesh.agents.ui import UiAgent
