@@ -1,18 +1,21 @@
 """``lcmesh bench lifecycle``: how the mesh stops, however it is stopped, and how a second start is refused.
 
-Each trial runs ``lcmesh demo`` as a real process tree (router, orchestrator, agents) in a fresh
-data dir on free loopback ports, in its own session as a terminal would run it, and then:
+Each trial runs ``lcmesh demo`` as a real process tree (router, orchestrator and the demo's own
+agents: configuration, sensor, control, maintenance, monitor, UI) in a fresh data dir on free
+loopback ports, in its own session as a terminal would run it, and then:
 
 | trial | what is done | what is measured |
 |---|---|---|
-| SIGHUP, SIGINT | the signal to the demo's process group (a closed terminal, Ctrl-C) | s until no process of the data dir is left, ports free, exit code |
+| SIGHUP, SIGINT | to the demo's process group (closed terminal, Ctrl-C) | s until nothing is left, ports, exit code |
 | SIGTERM | ``lcmesh stop --data-dir D`` (which sends it) | the same |
 | SIGKILL | the demo alone is killed | the same (its children are tied to it) |
+| SIGKILL during the stop | SIGTERM, then SIGKILL once the demo says it is stopping | the same |
 | orchestrator SIGKILL | the orchestrator alone is killed | s until none of its agents is left |
 | stale | a second demo on the same ports, another data dir | s until it exits, its code, whether it names the holder |
 
-The tests (tests/mesh/test_lifecycle.py) run the same trials and assert what is left; the seconds
-are reported here only (the targets: 10 s to stop, 15 s to refuse).
+The tests (tests/mesh/test_lifecycle.py) run the same trials on lighter meshes (configuration and
+monitor agents) and assert what is left; the seconds are reported here only (the targets: 10 s to
+stop, 15 s to refuse).
 """
 
 from __future__ import annotations
@@ -35,7 +38,8 @@ from lcmesh.mesh.service import mesh_processes, port_listener
 LCMESH = str(Path(sys.executable).parent / "lcmesh")
 STOP_TARGET_S, STALE_TARGET_S = 10.0, 15.0
 START_TIMEOUT_S = 120.0  # generous: a busy machine starts slowly; liveness, not speed
-ROLES = ("configuration", "monitor")  # light agents: what is measured is the process tree, not the plant
+ROLES = ("configuration", "monitor")  # the tests' light agents: what they check is the process tree, not the plant
+DEMO_ROLES = ("configuration", "sensor", "control", "maintenance", "monitor", "ui")  # MeshSettings' default
 
 
 def free_port() -> int:
@@ -122,11 +126,18 @@ def stop_everything(run: DemoRun) -> None:
             pass
 
 
-def signal_trial(run: DemoRun, sig: signal.Signals) -> dict:
-    """Stop `run` with `sig` as a user would send it; what is left, how fast, the ports, the exit code."""
+def signal_trial(run: DemoRun, sig: signal.Signals, kill_during_stop: bool = False) -> dict:
+    """Stop `run` with `sig` as a user would send it (then SIGKILL as soon as the demo says it is stopping, with
+    `kill_during_stop`); what is left, how fast, the ports, the exit code."""
     before = len(mesh_processes(run.data_dir))
     t0 = time.monotonic()
-    if sig == signal.SIGTERM:  # `lcmesh stop` sends it to the demo
+    if kill_during_stop:
+        os.kill(run.popen.pid, sig)
+        while "stopping the mesh" not in run.text() and time.monotonic() - t0 < 30:
+            time.sleep(0.005)
+        os.kill(run.popen.pid, signal.SIGKILL)
+        how = f"kill -{sig.name[3:]}, then -KILL {time.monotonic() - t0:.2f} s later, during the stop"
+    elif sig == signal.SIGTERM:  # `lcmesh stop` sends it to the demo
         stop = subprocess.run([LCMESH, "stop", "--data-dir", str(run.data_dir)], capture_output=True, text=True,
                               timeout=180)  # fmt: skip
         how = f"lcmesh stop (exit {stop.returncode})"
@@ -172,13 +183,13 @@ def stale_trial(run: DemoRun, data_dir: Path) -> dict:
             "message": said[-600:], "within_target": seconds <= STALE_TARGET_S and second.returncode != 0 and names}
 
 
-def run_bench_lifecycle(say: Callable[[str], None] = print, root: Path | None = None) -> dict:
-    """Every trial once; the figures for BENCHMARKS.md."""
+def run_bench_lifecycle(say: Callable[[str], None] = print, root: Path | None = None,
+                        roles: tuple[str, ...] = DEMO_ROLES) -> dict:  # fmt: skip
+    """Every trial once on the demo's own agents; the figures for BENCHMARKS.md."""
     root = Path(root or tempfile.mkdtemp(prefix="lcmesh-lifecycle-"))
     trials = []
     extra: dict = {}
     for sig in (signal.SIGHUP, signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-        roles = ROLES + ("ui",) if sig in (signal.SIGHUP, signal.SIGKILL) else ROLES
         run = start_demo(root / f"demo-{sig.name.lower()}", roles)
         try:
             if sig == signal.SIGHUP:
@@ -193,15 +204,23 @@ def run_bench_lifecycle(say: Callable[[str], None] = print, root: Path | None = 
             say(f"{sig.name}: {trials[-1]['seconds_to_none_left']} s, left {trials[-1]['left']}")
         finally:
             stop_everything(run)
-    return {"machine": machine_info(), "targets": {"stop_s": STOP_TARGET_S, "stale_s": STALE_TARGET_S},
-            "signals": trials, **extra}
+    run = start_demo(root / "demo-kill-during-stop", roles)
+    try:
+        trials.append(signal_trial(run, signal.SIGTERM, kill_during_stop=True))
+        say(f"SIGKILL during the stop: {trials[-1]['seconds_to_none_left']} s, left {trials[-1]['left']}")
+    finally:
+        stop_everything(run)
+    return {"machine": machine_info(), "roles": list(roles),
+            "targets": {"stop_s": STOP_TARGET_S, "stale_s": STALE_TARGET_S}, "signals": trials, **extra}
 
 
 def render_lifecycle(result: dict) -> str:
     """The BENCHMARKS.md section."""
     m = result["machine"]
     lines = ["## Lifecycle (`lcmesh bench lifecycle --json runs/bench/lifecycle.json --markdown BENCHMARKS.md`)", "",
-             f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}. One run.",
+             f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}. "
+             f"One run of each, the demo with its agents {', '.join(result['roles'])} (lcopt-5, Frontier day, 60x), "
+             "quiet machine. `lcmesh stop`'s seconds include the command's own start-up.",
              "",
              f"Targets: nothing left within {result['targets']['stop_s']:g} s of a stop, a stale start refused within "
              f"{result['targets']['stale_s']:g} s (`lcmesh bench lifecycle`; real `lcmesh demo` process trees).", "",
