@@ -11,6 +11,12 @@ import pytest
 # test mesh (and compose process) would cost minutes of the two cores; tests/llm/test_planner.py and
 # `lcmesh bench chat` exercise the LLM planner itself.
 os.environ.setdefault("LCMESH_UI_PLANNER", "rules")
+# One intra-op thread for torch here and in every process a test starts (the variable is inherited). The tier must
+# pass on a machine whose two cores are busy with other work, and there torch's default of one thread per core
+# oversubscribes them: its threads wait at every operation's barrier for a sibling the scheduler has parked. Measured
+# with two busy loops on 2 cores: a shipped policy's floor test took 23 s inside the tier (0.8 s on a quiet machine),
+# and 1.5 s alone with one thread against 3.8 s with two. The tests check decisions, not parallel speed.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 THREAD_EXIT_GRACE_S = 10.0  # a thread told to stop may still be on its way out when its owner returns
 _STARTED_BY: dict[threading.Thread, str] = {}  # a thread found running after a test -> that test's id
 
