@@ -22,7 +22,6 @@ import os
 import random
 import secrets
 import shutil
-import socket
 import tempfile
 import time
 from collections.abc import Callable
@@ -34,7 +33,7 @@ import psutil
 
 from lcmesh.bench.machine import machine_info
 from lcmesh.mesh.demo import Demo
-from lcmesh.mesh.processes import agent_child, child_env
+from lcmesh.mesh.processes import agent_child, child_env, free_port
 from lcmesh.mesh.settings import MeshSettings
 
 ROLES = ["configuration", "sensor", "control", "monitor", "ui"]
@@ -45,12 +44,6 @@ QUESTIONS = {
     "why": "why did the controller lower the supply setpoint?", "whatif": "what if I raise the supply setpoint 2 K?",
     "command": "set the supply setpoint of cabinet 3 to 30 °C", "alerts": "any alerts?",
 }  # fmt: skip
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _stats_ms(latencies_s: list[float]) -> dict:
@@ -138,7 +131,7 @@ def _wait_ready(url: str, timeout_s: float, what: Callable[[dict], bool] = lambd
 def run_bench_api(*, quick: bool = False, llm: bool = True, say: Callable[[str], None] = print) -> dict:
     """Start the mesh, measure, stop; the result dict (also what BENCHMARKS.md renders)."""
     root = Path(tempfile.mkdtemp(prefix="lcmesh-bench-api-"))
-    router, ui_port, llm_port = _free_port(), _free_port(), _free_port()
+    router, ui_port, llm_port = free_port(), free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{router}"
     settings = MeshSettings(site="benchapi", router_endpoints=[endpoint], listen_endpoints=[endpoint], system="lcopt-5",
                             controller="g36", speed_factor=60.0, data_dir=root, ui_port=ui_port,

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lcmesh.bench.machine import machine_info
-from lcmesh.mesh.processes import wait_for_port
+from lcmesh.mesh.processes import free_port, wait_for_port
 from lcmesh.mesh.service import mesh_processes, port_listener
 
 LCMESH = str(Path(sys.executable).parent / "lcmesh")
@@ -40,14 +40,6 @@ STOP_TARGET_S, STALE_TARGET_S = 10.0, 15.0
 START_TIMEOUT_S = 120.0  # generous: a busy machine starts slowly; liveness, not speed
 ROLES = ("configuration", "monitor")  # the tests' light agents: what they check is the process tree, not the plant
 DEMO_ROLES = ("configuration", "sensor", "control", "maintenance", "monitor", "ui")  # MeshSettings' default
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass

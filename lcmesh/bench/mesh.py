@@ -28,6 +28,7 @@ from lcmesh.mesh import keys
 from lcmesh.mesh.bus import Bus
 from lcmesh.mesh.demo import Demo
 from lcmesh.mesh.messages import AppliedAction, ConfigDoc, ConfigUpdate, PlantState
+from lcmesh.mesh.processes import free_port
 from lcmesh.mesh.settings import MeshSettings
 
 ROLES = ["configuration", "sensor", "control", "maintenance", "monitor"]
@@ -210,7 +211,7 @@ def run_bench_mesh(controller: str = "tree", quick: bool = False, say: Callable[
         _, notes[system] = build_controller(controller, load_system(system))
         if notes[system]:
             say(f"note ({system}): {notes[system]}")
-    port = _free_port()
+    port = free_port()
     load_before = os.getloadavg()[0]
     say("latency, lcopt-5 ...")
     small = measure_latency("lcopt-5", controller, 300.0, 60 if quick else 600, port, say)
@@ -269,11 +270,3 @@ def render_mesh(r: dict) -> str:
 def _load(r: dict) -> str:
     load = r.get("load_average")
     return f"{load['before']:.1f} before, {load['after']:.1f} after" if load else "not recorded"
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]

@@ -127,6 +127,13 @@ def agent_child(role: str, agent_id: str, env: dict[str, str], log_path: Path) -
     return Child(agent_id, [sys.executable, "-m", "lcmesh.mesh.agents", role, "--id", agent_id], env, log_path)
 
 
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now (the OS's choice)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def wait_for_port(host: str, port: int, timeout_s: float = 10.0) -> bool:
     """True once something accepts TCP connections on host:port."""
     deadline = time.monotonic() + timeout_s

@@ -6,7 +6,6 @@ answers late, never wrongly, and a client that gave up would leave the server de
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
@@ -18,20 +17,15 @@ import uvicorn
 from lcmesh.llm.base import LlmBackendSettings, make_backend
 from lcmesh.llm.controller import LlmController
 from lcmesh.llm.server import create_app
+from lcmesh.mesh.processes import free_port
 from lcmesh.twin.controllers import Observation
 
 SLOW_MACHINE_S = 600.0  # pytest's own timeout: no request gives up before the test would
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def server_url(base_backend):
-    port = _free_port()
+    port = free_port()
     server = uvicorn.Server(uvicorn.Config(create_app(base_backend), host="127.0.0.1", port=port, log_level="error"))
     thread = threading.Thread(target=server.run, name="test-llm-server")
     thread.start()
@@ -82,7 +76,7 @@ def test_controller_over_http_decides_every_cabinet(client, plant, lcopt5):
 
 
 def test_dead_endpoint_is_an_error_generation_not_an_exception():
-    settings = LlmBackendSettings(backend="openai", base_url=f"http://127.0.0.1:{_free_port()}/v1", timeout_s=2)
+    settings = LlmBackendSettings(backend="openai", base_url=f"http://127.0.0.1:{free_port()}/v1", timeout_s=2)
     backend = make_backend(settings)
     (gen,) = backend.chat([[{"role": "user", "content": "hi"}]], max_new_tokens=4)
     backend.close()
