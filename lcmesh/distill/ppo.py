@@ -43,6 +43,7 @@ from lcmesh.distill.features import APPROACH_LEVELS_K, FeatureLayout
 from lcmesh.distill.policy import AgentNet, AgentSpec, PolicyFile, PpoController, save_policy
 from lcmesh.distill.ppo_config import CASES, Case, PpoConfig
 from lcmesh.distill.ppo_env import TrainPlants
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS
 from lcmesh.twin.traces import TRAIN_SEEDS
 
 
@@ -164,8 +165,10 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
     seed_order = np.random.default_rng(cfg.seed).permutation(np.asarray(TRAIN_SEEDS))
+    guardrails = MESH_GUARDRAILS if cfg.guardrails else None
     plants = TrainPlants(cfg.system, itertools.cycle(int(s) for s in seed_order), cfg.n_envs, cfg.episode_steps,
-                         scenarios=cfg.scenario_list(), reward=cfg.reward)  # fmt: skip
+                         scenarios=cfg.scenario_list(), reward=cfg.reward, guardrails=guardrails,
+                         travel_scale=cfg.deploy_travel_scale)  # fmt: skip
     system = plants.system
     trainers = build_trainers(cfg, plants)
     case = CASES[cfg.case]
@@ -221,10 +224,9 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
             if (update + 1) % cfg.eval_every == 0 or update == n_updates - 1:
                 nets = {k: t.net.eval() for k, t in trainers.items()}
                 ctrl = PpoController(system, loaded=(nets, meta(std, {})))
-                runs = [run_twin(eval_plant, tr, ctrl).kpi for tr in eval_traces]
-                kpi = {k: float(np.mean([r[k] for r in runs])) for k in ("d_blade_pct", "ct_power_kw_avg", "pump_power_kw_avg")}
-                score = (kpi["d_blade_pct"] - cfg.eval_ct_weight_per_kw * kpi["ct_power_kw_avg"]
-                         - cfg.eval_pump_weight_per_kw * kpi["pump_power_kw_avg"])  # fmt: skip
+                runs = [run_twin(eval_plant, tr, ctrl, guardrails=guardrails).kpi for tr in eval_traces]
+                kpi = validation_kpis(runs, cfg.eval_hours)
+                score = selection_score(kpi, cfg)
                 row.update({"val_d_blade_pct": kpi["d_blade_pct"], "val_ct_power_kw": kpi["ct_power_kw_avg"], "val_score": score})
                 metrics = {"validation": {"trace": cfg.eval_trace, "hours": cfg.eval_hours, **kpi}, "update": update + 1,
                            "env_steps": (update + 1) * steps_per_update, "wall_s": row["wall_s"]}  # fmt: skip
@@ -250,6 +252,24 @@ def train_ppo(cfg: PpoConfig, on_update: Callable[[int, int, dict], None] | None
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
     _plot_log(log_path, out / "training.png")
     return summary
+
+
+def validation_kpis(runs: list[dict], hours: float) -> dict:
+    """The validation figures the selection score reads, averaged over the validation days."""
+    per_day = 24.0 / hours
+    return {
+        **{k: float(np.mean([r[k] for r in runs])) for k in ("d_blade_pct", "ct_power_kw_avg", "pump_power_kw_avg")},
+        "supply_travel_k_day": float(np.mean([r["actuator_travel"]["supply_temp_setpoint_k"] for r in runs])) * per_day,
+        "blade_max_c": float(np.max([r["blade_temp_max_c"] for r in runs])),
+    }
+
+
+def selection_score(kpi: dict, cfg: PpoConfig) -> float:
+    """The checkpoint (and seed) selection score, declared in the config before any test day is run."""
+    return (kpi["d_blade_pct"] - cfg.eval_ct_weight_per_kw * kpi["ct_power_kw_avg"]
+            - cfg.eval_pump_weight_per_kw * kpi["pump_power_kw_avg"]
+            - cfg.eval_travel_weight_per_k * kpi["supply_travel_k_day"]
+            - cfg.eval_hot_weight_per_k * max(0.0, kpi["blade_max_c"] - cfg.eval_hot_limit_c))  # fmt: skip
 
 
 def git_commit() -> str:

@@ -71,10 +71,20 @@ class PpoConfig:
     eval_ct_weight_per_kw: float = 0.02
     """Checkpoint score = d_blade_pct - this * ct_power_kw_avg (2 points per 100 kW of fans) - ..."""
     eval_pump_weight_per_kw: float = 0.0
-    """... - this * pump_power_kw_avg (pumps: CDU, hot water, tower water)."""
+    """... - this * pump_power_kw_avg (pumps: CDU, hot water, tower water) ..."""
+    eval_travel_weight_per_k: float = 0.0
+    """... - this * supply-setpoint travel (K per day, summed over the CDUs) ..."""
+    eval_hot_weight_per_k: float = 0.0
+    """... - this * the hottest blade group's excess over ``eval_hot_limit_c`` (K, the day's maximum)."""
+    eval_hot_limit_c: float = 40.0
+    deploy_travel_scale: float = 1.0
+    """Reward ``deploy`` only: multiplies its travel weights (0.5/K supply, 0.05/psi dp, 0.1/K leaving water)."""
+    guardrails: bool = True
+    """Train and validate behind the mesh's guardrails (``GuardrailLimits`` defaults); False: bare (the paper)."""
     reward: str = "lcopt"
-    """Training reward (lcmesh/distill/ppo_env.py): ``lcopt`` (the shipped policies') or ``energy`` (the band, then
-    the cooling energy: what the suite scores)."""
+    """Training reward (lcmesh/distill/ppo_env.py): ``lcopt`` (the paper policies'), ``energy`` (the band, then
+    the cooling energy: what the suite scores), ``energy_smooth`` or ``deploy`` (``energy`` plus actuator travel
+    and the hottest blade: the shipped policy's)."""
     threads: int = 1
     """torch threads (the envs step on one core; more threads rarely help nets this small)."""
     out: str = "runs/ppo"
@@ -94,8 +104,8 @@ class PpoConfig:
         return days
 
     def __post_init__(self) -> None:
-        if self.reward not in ("lcopt", "energy", "energy_smooth"):
-            raise ValueError(f"`reward` must be 'lcopt', 'energy' or 'energy_smooth', got {self.reward!r}")
+        if self.reward not in ("lcopt", "energy", "energy_smooth", "deploy"):
+            raise ValueError(f"`reward` must be 'lcopt', 'energy', 'energy_smooth' or 'deploy', got {self.reward!r}")
         if not self.scenario_list():
             raise ValueError("`scenarios` must name at least one scenario (e.g. 'lcopt' or 'frontier,design-day')")
         from lcmesh.twin.traces import scenario_named  # numpy only: the CLI stays fast

@@ -23,18 +23,32 @@ the look-ahead controller's cost in per-step form: the band, then the cooling en
 Reward ``"energy_smooth"`` is ``"energy"`` with ``-0.1 / K`` of the cabinet's supply-setpoint change over the
 step: a policy trained on ``"energy"`` alone flips its supply setpoint between extremes (tens of thousands of
 kelvin of travel a day, against G36's hundreds).
+
+Reward ``"deploy"`` (issue 23: a policy an operator would run) is ``"energy"`` plus actuator travel and the
+hottest blade, declared before any test day was looked at:
+
+- cabinet i: ``- 0.5 / K`` of its applied supply-setpoint change ``- 0.05 / psi`` of its dp-setpoint change
+  ``- 2 / K`` of its hottest blade group above 39 degC;
+- tower j: ``- 0.1 / K`` of its applied leaving-water-setpoint change ``- 2 / K`` of the plant's hottest blade
+  group above 39 degC.
+
+Travel is measured on what the plant applied, after the mesh's guardrails (on in training by default).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from lcmesh.distill.features import FeatureBuilder, TowerSetpoints, decode_cabinet
+from lcmesh.mesh.tools.guardrails import apply_guardrails
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS, applied_action, guard
 from lcmesh.twin.controllers.g36 import G36Controller
 from lcmesh.twin.envs.episode import KPI_BAND_K, EpisodeConfig, EpisodeDriver
 from lcmesh.twin.plant import PlantAction
+from lcmesh.twin.system import PSI_TO_PA, load_system
 
 OVERHEAT_MARGIN_K = 273.15 + 38.5
 TEMP_REF_K = 273.15 + 35.0
@@ -43,7 +57,27 @@ TOWER_OVERHEAT_WEIGHT = 3.0
 BAND_WEIGHT = 5.0
 ENERGY_WEIGHT = 0.3
 TRAVEL_WEIGHT_PER_K = 0.1
-REWARDS = ("lcopt", "energy", "energy_smooth")
+DEPLOY_SUPPLY_PER_K = 0.5
+DEPLOY_DP_PER_PSI = 0.05
+DEPLOY_LW_PER_K = 0.1
+DEPLOY_HOT_PER_K = 2.0
+DEPLOY_HOT_LIMIT_K = 273.15 + 39.0
+REWARDS = ("lcopt", "energy", "energy_smooth", "deploy")
+
+
+@dataclass(frozen=True)
+class Travel:
+    """How far the applied setpoints moved over one step: supply (C,) K, dp (C,) psi, leaving water (N,) K."""
+
+    supply_k: np.ndarray
+    dp_psi: np.ndarray
+    lw_k: np.ndarray
+
+    @classmethod
+    def between(cls, before: PlantAction, after: PlantAction) -> "Travel":
+        return cls(np.abs(after.supply_temp_setpoint_k - before.supply_temp_setpoint_k),
+                   np.abs(after.dp_setpoint_pa - before.dp_setpoint_pa) / PSI_TO_PA,
+                   np.abs(after.lw_setpoint_k - before.lw_setpoint_k))  # fmt: skip
 
 
 class TrainPlants:
@@ -57,10 +91,15 @@ class TrainPlants:
         episode_steps: int,
         scenarios: tuple[str, ...] = ("lcopt",),
         reward: str = "lcopt",
+        guardrails=MESH_GUARDRAILS,
+        travel_scale: float = 1.0,
     ):
         if reward not in REWARDS:
             raise ValueError(f"`reward` must be one of {REWARDS}, got {reward!r}")
         self.reward = reward
+        self.guardrails = guardrails  # the mesh's limits on every action (None: bare, the paper's setting)
+        self.clamped_steps = 0
+        self.travel_scale = travel_scale
         self.seeds = seeds
         self.episode_steps = episode_steps
         self.scenarios = scenarios
@@ -134,17 +173,23 @@ class TrainPlants:
                     action.valve_fractions[:] = base.valve_fractions
             if tower_choice is not None:
                 self.towers[e].apply(tower_choice[e], obs.wet_bulb_k, action)
-            travel_k = np.abs(action.supply_temp_setpoint_k - obs.out["applied_supply_setpoint_k"])
+            before = applied_action(obs.out)
+            if self.guardrails is not None:  # what the mesh's Sensor would apply
+                guarded = apply_guardrails(action, before, obs.wet_bulb_k, self.guardrails, self.system)
+                if guarded.action is not None:
+                    self.clamped_steps += bool(guarded.clamps)
+                    for dst, src in zip(action.astuple(), guarded.action.astuple()):
+                        dst[...] = src
             out, term, _ = driver.step(action)
             terminated[e] = term
-            cab_r[e], tow_r[e] = self._rewards(out, action, travel_k)
+            cab_r[e], tow_r[e] = self._rewards(out, action, Travel.between(before, action))
             in_band[e] = driver.in_band_fraction()
             fan_kw[e] = float(out["ct_fan_power_w"]) / 1e3
         return {"cabinet_reward": cab_r, "tower_reward": tow_r, "terminated": terminated,
                 "in_band": in_band, "ct_fan_kw": fan_kw}  # fmt: skip
 
-    def _rewards(self, out, action: PlantAction, travel_k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return step_rewards(self.system, out, action, self.reward, travel_k)
+    def _rewards(self, out, action: PlantAction, travel: "Travel") -> tuple[np.ndarray, np.ndarray]:
+        return step_rewards(self.system, out, action, self.reward, travel, self.travel_scale)
 
     def close(self) -> None:
         for d in self.drivers:
@@ -152,11 +197,11 @@ class TrainPlants:
 
 
 def step_rewards(
-    system, out, action: PlantAction, reward: str = "lcopt", supply_travel_k: np.ndarray | float = 0.0
+    system, out, action: PlantAction, reward: str = "lcopt", travel: Travel | None = None, travel_scale: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-cabinet (C,) and per-tower (N,) rewards of the step just taken (see the module docstring).
 
-    ``supply_travel_k``: each cabinet's supply-setpoint change over the step (``energy_smooth`` only).
+    ``travel``: how far the applied setpoints moved over the step (``energy_smooth`` and ``deploy``; None: 0).
     """
     cab, tw = system.cabinets, system.towers
     C, B, N, m = cab.count, cab.branches, tw.count, tw.cells
@@ -166,16 +211,24 @@ def step_rewards(
     share = power / np.maximum(power.sum(axis=1, keepdims=True), 1.0)
     valve_term = np.abs(action.valve_fractions - share).sum(axis=1)
     fans = out["cell_fan_power_w"].reshape(N, m).sum(axis=1) / (m * tw.cell.fan_power_nominal_w)
-    if reward in ("energy", "energy_smooth"):
+    if reward in ("energy", "energy_smooth", "deploy"):
         lo, hi = KPI_BAND_K
         outside = ((blade < lo) | (blade > hi)).mean(axis=1)
         pump = out["cdu_pump_power_w"] / _design_pump_w(system)
         primary = out["primary_flow_kg_s"] / cab.cdu.primary_flow_max_kg_s
         cabinet = (-BAND_WEIGHT * outside - overheat - ENERGY_WEIGHT * pump - ENERGY_WEIGHT * primary
                    - VALVE_TERM_WEIGHT * valve_term)  # fmt: skip
-        if reward == "energy_smooth":
-            cabinet = cabinet - TRAVEL_WEIGHT_PER_K * np.asarray(supply_travel_k)
         tower = -fans - TOWER_OVERHEAT_WEIGHT * overheat.mean() - BAND_WEIGHT * outside.mean()
+        if travel is not None and reward == "energy_smooth":
+            cabinet = cabinet - TRAVEL_WEIGHT_PER_K * travel.supply_k
+        if reward == "deploy":
+            hottest = blade.max(axis=1)
+            cabinet = cabinet - DEPLOY_HOT_PER_K * np.maximum(hottest - DEPLOY_HOT_LIMIT_K, 0.0)
+            tower = tower - DEPLOY_HOT_PER_K * max(float(hottest.max()) - DEPLOY_HOT_LIMIT_K, 0.0)
+            if travel is not None:
+                w = travel_scale
+                cabinet = cabinet - w * (DEPLOY_SUPPLY_PER_K * travel.supply_k + DEPLOY_DP_PER_PSI * travel.dp_psi)
+                tower = tower - w * DEPLOY_LW_PER_K * travel.lw_k
         return cabinet, tower
     mean_t = out["branch_temp_k"].reshape(C, B).mean(axis=1)
     cabinet = -0.1 * (mean_t - TEMP_REF_K) - overheat - VALVE_TERM_WEIGHT * valve_term
@@ -198,12 +251,16 @@ def episode_rewards(
     wet_bulb_offset_k: float = 15.0,
     scenarios: tuple[str, ...] = ("lcopt",),
     reward: str = "lcopt",
+    guardrails=MESH_GUARDRAILS,
 ) -> dict:
     """Mean episode reward per cabinet and per tower of ``controller`` over evaluation episodes (Tables 12/14).
+
+    ``controller`` runs behind ``guardrails`` (default the mesh's; None: bare), as everywhere else.
 
     One episode per seed: the trace ``synthetic:SEED`` from row 0 (after the warm-up), ``steps`` steps, under
     scenario ``scenarios[seed % len(scenarios)]`` (``lcopt`` with ``wet_bulb_offset_k``), scored with ``reward``.
     """
+    controller = guard(controller, load_system(system_name), guardrails)
     cab_total, tow_total = [], []
     for seed in seeds:
         scenario = scenarios[seed % len(scenarios)]
@@ -216,11 +273,10 @@ def episode_rewards(
             cab, tow = 0.0, 0.0
             for _ in range(steps):
                 obs = driver.observation()
-                before = obs.out["applied_supply_setpoint_k"].copy()
+                before = applied_action(obs.out)
                 action = controller.act(obs)
-                travel_k = np.abs(action.supply_temp_setpoint_k - before)
                 out, terminated, truncated = driver.step(action)
-                c, t = step_rewards(driver.system, out, action, reward, travel_k)
+                c, t = step_rewards(driver.system, out, action, reward, Travel.between(before, action))
                 cab += float(c.mean())
                 tow += float(t.mean())
                 if terminated or truncated:

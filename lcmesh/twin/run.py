@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.twin.controllers import Controller, Observation
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS, guard, guardrail_report
 from lcmesh.twin.kpi import KpiAccumulator
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.traces import Trace
@@ -30,6 +31,7 @@ class RunResult:
     trace: str
     controller: str
     controller_cost: dict | None = None  # a controller that simulates ahead: plant steps and seconds it took
+    guardrails: dict = field(default_factory=lambda: {"guardrails": "off"})  # what the mesh's guardrails did
     series: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
     cabinet0: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
 
@@ -46,6 +48,7 @@ class RunResult:
             "system": self.system,
             "trace": self.trace,
             "controller": self.controller,
+            "guardrails": self.guardrails,
             **({"controller_cost": self.controller_cost} if self.controller_cost is not None else {}),
         }
 
@@ -60,6 +63,7 @@ def run_twin(
     record_every: int = 1,
     on_step: Callable[[int], None] | None = None,
     score_from: int = 0,
+    guardrails=MESH_GUARDRAILS,
 ) -> RunResult:
     """Run `controller` on `plant` over `trace` (from its first step), after a spin-up at its first row.
 
@@ -68,7 +72,12 @@ def run_twin(
     run by the same controller (its state carries over) and the KPIs cover the steps from k on.
 
     A controller with an ``attach(plant, trace)`` method (the look-ahead) gets both before the spin-up.
+
+    ``guardrails``: the limits every action passes, as in the mesh (default: the mesh's own ``GuardrailLimits``
+    through ``apply_guardrails``; lcmesh/twin/controllers/guarded.py); None runs the controller bare (the paper's
+    setting). The result says which, and how often the guardrails clamped or rejected.
     """
+    controller = guard(controller, plant.system, guardrails)
     n_steps = trace.n_steps if n_steps is None else min(n_steps, trace.n_steps)
     if not 0 <= score_from < n_steps:
         raise ValueError(f"`score_from` must be in 0..{n_steps - 1}, got {score_from}")
@@ -109,6 +118,7 @@ def run_twin(
         trace=trace.name,
         controller=getattr(controller, "name", type(controller).__name__),
         controller_cost=_controller_cost(controller),
+        guardrails=guardrail_report(controller),
         series=rec.series(),
         cabinet0=rec.cabinet0(),
     )
