@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.bench.machine import machine_info
-from lcmesh.bench.suite import TEST_DAYS, Day, load_day, run_day
+from lcmesh.bench.suite import GUARDRAILS_ON, TEST_DAYS, Day, load_day, run_day
 from lcmesh.twin.controllers import make_controller
 from lcmesh.twin.system import load_system
 
@@ -98,13 +98,17 @@ def run_ablation(
         "hours": hours,
         "days": [d.label for d in days],
         "folder": str(folder),
+        "guardrails": GUARDRAILS_ON,
         "baselines": {name: {"days": rows, "mean": _day_means(rows)} for name, rows in base.items()},
         "cases": cases,
     }
 
 
 def _day_means(rows: dict[str, dict]) -> dict[str, float]:
-    return {k: float(np.mean([r[k] for r in rows.values()])) for k in FIGURES}
+    means = {k: float(np.mean([r[k] for r in rows.values()])) for k in FIGURES}
+    means["supply_travel_k"] = float(np.mean([r["travel"]["supply_temp_setpoint_k"] for r in rows.values()]))
+    means["blade_max_c_worst"] = float(np.max([r["blade_max_c"] for r in rows.values()]))
+    return means
 
 
 def _seed_summary(seed: int, path: Path, rows: dict[str, dict], g36: dict[str, dict] | None) -> dict:
@@ -120,7 +124,7 @@ def _seed_summary(seed: int, path: Path, rows: dict[str, dict], g36: dict[str, d
 def _over_seeds(seeds: list[dict]) -> dict:
     """Mean and sample std over seeds of each seed's suite mean; the worst seed's D_blade."""
     mean, std = {}, {}
-    for key in FIGURES:
+    for key in (*FIGURES, "supply_travel_k", "blade_max_c_worst"):
         a = np.array([s["mean"][key] for s in seeds], dtype=float)
         mean[key], std[key] = float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
     worst = min(seeds, key=lambda s: s["mean"]["d_blade_pct"])
@@ -136,23 +140,27 @@ def render_ablation(r: dict) -> str:
         "",
         f"{r['system']}, {len(r['days'])} held-out test days of {r['hours']:g} h (lcmesh/bench/suite.py), the policies in "
         f"`{Path(r['folder']).name}/` (one schedule: 160k steps; seeds selected on the validation days only). "
-        "Per seed: the mean over the days; per case: mean +- sample std over the seeds. Energies in kWh per run of each day.",
+        "Per seed: the mean over the days; per case: mean +- sample std over the seeds. Energies in kWh per run of each day. "
+        f"Guardrails: {r.get('guardrails', 'not recorded')}. Hottest blade: the hottest blade group of any day; "
+        "supply travel: summed |change| of the applied supply setpoints per day, over the five CDUs.",
         "",
-        "| case | control | seeds | D_blade % | cooling kWh | tower fans kWh | pumps kWh | worst seed D_blade % |"
-        " worst day vs G36, pts (per seed) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| case | control | seeds | D_blade % | cooling kWh | tower fans kWh | pumps kWh | hottest blade C | "
+        "supply travel K/day | worst seed D_blade % | worst day vs G36, pts (per seed) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, b in r["baselines"].items():
         bm = b["mean"]
         lines.append(f"| {name} | baseline | - | {bm['d_blade_pct']:.2f} | {bm['cooling_kwh']:.0f} | "
-                     f"{bm['tower_fan_kwh']:.0f} | {bm['pump_kwh']:.0f} | | |")  # fmt: skip
+                     f"{bm['tower_fan_kwh']:.0f} | {bm['pump_kwh']:.0f} | {bm.get('blade_max_c_worst', float('nan')):.1f} | "
+                     f"{bm.get('supply_travel_k', float('nan')):,.0f} | | |")  # fmt: skip
     for case, c in r["cases"].items():
         mn, sd = c["mean"], c["std"]
         worst_days = ", ".join(f"{s['worst_day_vs_g36']['points']:+.1f}" for s in c["seeds"] if "worst_day_vs_g36" in s)
         lines.append(
             f"| {case} | {c['title']} | {len(c['seeds'])} | {mn['d_blade_pct']:.2f} +- {sd['d_blade_pct']:.2f} | "
             f"{mn['cooling_kwh']:.0f} +- {sd['cooling_kwh']:.0f} | {mn['tower_fan_kwh']:.0f} +- {sd['tower_fan_kwh']:.0f} | "
-            f"{mn['pump_kwh']:.0f} +- {sd['pump_kwh']:.0f} | {c['worst_seed']['d_blade_pct']:.2f} (seed "
+            f"{mn['pump_kwh']:.0f} +- {sd['pump_kwh']:.0f} | {mn.get('blade_max_c_worst', float('nan')):.1f} | "
+            f"{mn.get('supply_travel_k', float('nan')):,.0f} | {c['worst_seed']['d_blade_pct']:.2f} (seed "
             f"{c['worst_seed']['seed']}) | {worst_days} |"
         )
     lines += ["", "Per seed: validation score (selection; D_blade - 0.02/kW x fans and pumps) / test D_blade % / "

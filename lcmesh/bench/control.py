@@ -19,6 +19,7 @@ from lcmesh.bench.machine import machine_info
 from lcmesh.distill.ppo_config import CASES
 from lcmesh.twin.controllers import make_controller
 from lcmesh.twin.controllers.base import Observation
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS, guard
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.run import run_twin
 from lcmesh.twin.system import load_system
@@ -53,6 +54,8 @@ def evaluate(
     with Plant(system) as plant:
         kpi = run_twin(plant, trace, make_controller(controller, system, **kwargs)).kpi
     row = {k: kpi[k] for k in ("d_blade_pct", "ct_power_kw_avg", "it_cooling_kw_avg", "pump_power_kw_avg")}
+    row["blade_max_c"] = kpi["blade_temp_max_c"]
+    row["supply_travel_k"] = kpi["actuator_travel"]["supply_temp_setpoint_k"]
     if rewards:
         row.update(episode_rewards(make_controller(controller, system, **kwargs), system_name, REWARD_SEEDS))
     return row
@@ -80,7 +83,8 @@ def record_series(system_name: str, controller: str, policy: Path | None, hours:
     system = load_system(system_name)
     C, B = system.cabinets.count, system.cabinets.branches
     trace = load_trace(FRONTIER_DAY, system, scenario="lcopt", hours=hours)
-    ctrl = make_controller(controller, system, **({"policy": str(policy)} if policy else {}))
+    ctrl = guard(make_controller(controller, system, **({"policy": str(policy)} if policy else {})), system,
+                 MESH_GUARDRAILS)  # fmt: skip
     power = np.zeros(system.n_blade_groups)
     rec = {k: [] for k in ("branch_power_kw", "branch_share", "valve_fraction", "branch_temp_c")}
     with Plant(system) as plant:

@@ -53,6 +53,7 @@ import numpy as np
 from lcmesh.bench.machine import machine_info
 from lcmesh.distill.tree_config import TreeDistillConfig
 from lcmesh.twin.controllers import Controller, make_controller
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS
 from lcmesh.twin.kpi import cooling_energies_kwh
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.run import run_twin, save_figure
@@ -91,12 +92,15 @@ VALIDATION_DAYS: tuple[Day, ...] = (
     _synthetic(1993, "design-day", "val-hot"),
 )
 
-FIGURES = ("d_blade_pct", "tower_fan_kwh", "pump_kwh", "cooling_kwh", "pue_cooling", "blade_max_c", "wall_s")
+GUARDRAILS_ON = "the mesh's guardrails (GuardrailLimits defaults, apply_guardrails) on every action"
+GUARDRAILS_OFF_TEXT = "no guardrails (the paper's setting; the mesh would clamp these actions)"
+FIGURES = ("d_blade_pct", "tower_fan_kwh", "pump_kwh", "cooling_kwh", "pue_cooling", "blade_max_c", "clamped_pct", "wall_s")
 TRAVEL = ("supply_temp_setpoint_k", "dp_setpoint_pa", "valve_fraction", "lw_setpoint_k")
 REGRET = ("d_blade_pts", "cooling_kwh")
 SUITE_HEADER = (
-    "| controller | D_blade % | tower fans kWh | pumps kWh | cooling kWh | cooling PUE | supply travel K | "
-    "dp travel psi | valve travel | tower LW travel K | regret D_blade pts | regret cooling kWh |"
+    "| controller | D_blade % | hottest blade C | tower fans kWh | pumps kWh | cooling kWh | cooling PUE | "
+    "supply travel K | dp travel psi | valve travel | tower LW travel K | clamped steps % | regret D_blade pts | "
+    "regret cooling kWh |"
 )
 
 
@@ -150,11 +154,13 @@ def load_day(day: Day, system: SystemDescription, hours: float | None = None) ->
     return load_trace(day.trace, system, scenario=day.scenario, hours=hours)
 
 
-def run_day(system: SystemDescription, trace: Trace, controller: Controller, score_from: int = 0) -> dict:
+def run_day(
+    system: SystemDescription, trace: Trace, controller: Controller, score_from: int = 0, guardrails=MESH_GUARDRAILS
+) -> dict:
     """``controller`` on a fresh plant over ``trace``: the suite's figures for that day (from step ``score_from``,
-    the steps before it a warm-up by the same controller)."""
+    the steps before it a warm-up by the same controller), behind ``guardrails`` (the mesh's; None: bare)."""
     with Plant(system) as plant:
-        run = run_twin(plant, trace, controller, score_from=score_from)
+        run = run_twin(plant, trace, controller, score_from=score_from, guardrails=guardrails)
     kpi, hours = run.kpi, run.sim_seconds / 3600.0
     fan_kwh, pump_kwh = cooling_energies_kwh(kpi, hours)
     return {
@@ -167,6 +173,9 @@ def run_day(system: SystemDescription, trace: Trace, controller: Controller, sco
         "travel": {k: kpi["actuator_travel"][k] for k in TRAVEL},
         "blade_max_c": kpi["blade_temp_max_c"],
         "wall_s": run.wall_seconds,
+        "heat_recovered_kwh": kpi["heat_recovered_kw_avg"] * hours,
+        "clamped_pct": float(run.guardrails.get("clamped_steps_pct", 0.0)),
+        "guardrails": run.guardrails,
     }
 
 
@@ -177,9 +186,11 @@ def run_suite(
     hours: float = 24.0,
     reference: str = "lookahead",
     progress: Progress | None = None,
+    guardrails: bool = True,
 ) -> dict:
     """Each controller on each day; per-day figures, mean and std over the days, regret against ``reference``.
 
+    Every controller runs behind the mesh's guardrails unless ``guardrails`` is False (the paper's setting).
     A controller that fails to build or to run is reported with its error, not raised.
     """
     if not controllers:
@@ -194,7 +205,7 @@ def run_suite(
         entry: dict = {"error": None, "days": {}}
         for day in days:
             if entry["error"] is None:
-                entry = _run_one(entry, system, traces[day.label], name, day.label)
+                entry = _run_one(entry, system, traces[day.label], name, day.label, guardrails)
             done += 1
             if progress is not None:
                 progress(f"{name} on {day.label}", done, total)
@@ -206,6 +217,7 @@ def run_suite(
         "system": system_name,
         "hours": hours,
         "reference": reference,
+        "guardrails": GUARDRAILS_ON if guardrails else GUARDRAILS_OFF_TEXT,
         "days": [_day_facts(d, traces[d.label]) for d in days],
         "controllers": per_controller,
     }
@@ -223,14 +235,14 @@ def _day_facts(day: Day, trace: Trace) -> dict:
     }
 
 
-def _run_one(entry: dict, system: SystemDescription, trace: Trace, name: str, label: str) -> dict:
+def _run_one(entry: dict, system: SystemDescription, trace: Trace, name: str, label: str, guardrails: bool = True) -> dict:
     """Add one day to ``entry``, or return an entry that holds the error (a fresh controller per day, no carry-over)."""
     try:
         controller = make_controller(name, system)
     except Exception as exc:  # noqa: BLE001 - a controller that cannot be built is a result of the benchmark
         return {"error": f"build failed: {type(exc).__name__}: {exc}", "days": {}}
     try:
-        entry["days"][label] = run_day(system, trace, controller)
+        entry["days"][label] = run_day(system, trace, controller, guardrails=MESH_GUARDRAILS if guardrails else None)
     except Exception as exc:  # noqa: BLE001 - so is one that fails mid-run
         return {"error": f"run on {label} failed: {type(exc).__name__}: {exc}", "days": {}}
     return entry
@@ -295,8 +307,11 @@ def render_suite(r: dict) -> str:
             f"Regret against `{r['reference']}`: D_blade points below it, cooling kWh above it (positive = worse)."
         ),
         "",
+        f"Guardrails: {r.get('guardrails', GUARDRAILS_OFF_TEXT)}; clamped steps = share of decisions the guardrails "
+        "changed. Hottest blade: the day's hottest blade group, mean ± std over the days (band top 40 C).",
+        "",
         SUITE_HEADER,
-        "|---" * 12 + "|",
+        "|---" * 14 + "|",
     ]
     for name, e in working.items():
         mu, sd = e["mean"], e["std"]
@@ -308,25 +323,31 @@ def render_suite(r: dict) -> str:
             if regret else " | "
         )  # fmt: skip
         lines.append(
-            f"| {name} | {_pm(mu['d_blade_pct'], sd['d_blade_pct'], 2)} | {_pm(mu['tower_fan_kwh'], sd['tower_fan_kwh'], 0)} | "
+            f"| {name} | {_pm(mu['d_blade_pct'], sd['d_blade_pct'], 2)} | {_pm(mu['blade_max_c'], sd['blade_max_c'], 1)} | "
+            f"{_pm(mu['tower_fan_kwh'], sd['tower_fan_kwh'], 0)} | "
             f"{_pm(mu['pump_kwh'], sd['pump_kwh'], 0)} | {_pm(mu['cooling_kwh'], sd['cooling_kwh'], 0)} | "
             f"{_pm(mu['pue_cooling'], sd['pue_cooling'], 4)} | {_pm(mt['supply_temp_setpoint_k'], st['supply_temp_setpoint_k'], 1)} | "
             f"{_pm(mt['dp_setpoint_pa'] / PSI_TO_PA, st['dp_setpoint_pa'] / PSI_TO_PA, 1)} | "
             f"{_pm(mt['valve_fraction'], st['valve_fraction'], 2)} | {_pm(mt['lw_setpoint_k'], st['lw_setpoint_k'], 1)} | "
-            f"{regret_cells} |"
+            f"{mu.get('clamped_pct', 0.0):.1f} | {regret_cells} |"
         )
     for name, e in r["controllers"].items():
         if e["error"] is not None:
-            lines.append(f"| {name} | not run: {e['error'].replace('|', '/')} |" + " |" * 10)
+            lines.append(f"| {name} | not run: {e['error'].replace('|', '/')} |" + " |" * 12)
     if r.get("regret_note"):
         lines += ["", f"Regret: {r['regret_note']}."]
     if working:
-        lines += ["", "### Per day: D_blade % / cooling kWh", "",
+        lines += ["", "### Per day: D_blade % / cooling kWh / hottest blade C / supply travel K", "",
                   "| day | " + " | ".join(working) + " |", "|---" * (len(working) + 1) + "|"]  # fmt: skip
         for d in r["days"]:
-            cells = [f"{e['days'][d['label']]['d_blade_pct']:.2f} / {e['days'][d['label']]['cooling_kwh']:.0f}"
-                     for e in working.values()]  # fmt: skip
+            cells = [_day_cell(e["days"][d["label"]]) for e in working.values()]
             lines.append(f"| {d['label']} | " + " | ".join(cells) + " |")
+        checks = deploy_checks(r)
+        if checks:
+            lines += ["", "### Deployable control (issue 23): the targets, measured", "",
+                      "| controller | target | measured | met |", "|---|---|---|---|"]  # fmt: skip
+            lines += [f"| {c['controller']} | {c['target']} | {c['measured']} | {'yes' if c['met'] else '**no**'} |"
+                      for c in checks]  # fmt: skip
     if "plot" in r:
         lines += ["", f"![D_blade against cooling energy, per controller]({r['plot']})"]
     lines += ["", "### Days", "", "| label | trace | scenario | mean IT load kW | mean wet bulb C |"]
@@ -341,6 +362,120 @@ def render_suite(r: dict) -> str:
     )
     lines += ["", machine]
     return "\n".join(lines)
+
+
+LCOPT_HRU_EFFECT = ("LC-Opt Section 7.3 (case 7, N=2, m=2, C=5, B=3): the HRU cuts the average cooling-tower "
+                    "power by about 21 % (10.2 kW, over 17 h)")
+
+
+def run_hru(controllers: list[str], days: tuple[Day, ...] = TEST_DAYS, hours: float = 24.0,
+            progress: Progress | None = None, guardrails: bool = True) -> dict:
+    """Each controller on ``days`` on lcopt-5 without and with the heat-recovery unit (lcopt-5-hru)."""
+    runs = {}
+    for system in ("lcopt-5", "lcopt-5-hru"):
+        def step(what: str, done: int, total: int, system=system) -> None:
+            if progress is not None:
+                progress(f"{system}: {what}", done, total)
+
+        runs[system] = run_suite(controllers, system, days, hours=hours, reference="none", progress=step,
+                                 guardrails=guardrails)  # fmt: skip
+    rows = {}
+    for name in controllers:
+        off, on = runs["lcopt-5"]["controllers"][name], runs["lcopt-5-hru"]["controllers"][name]
+        if off["error"] is not None or on["error"] is not None:
+            rows[name] = {"error": off["error"] or on["error"]}
+            continue
+        rows[name] = {"error": None, **{f"{k}_{tag}": e["mean"][k] for tag, e in (("off", off), ("on", on))
+                                        for k in ("tower_fan_kwh", "pump_kwh", "cooling_kwh", "d_blade_pct")},
+                      "heat_recovered_kwh": float(np.mean([d["heat_recovered_kwh"] for d in on["days"].values()])),
+                      "fan_cut_pct": _cut(off["mean"]["tower_fan_kwh"], on["mean"]["tower_fan_kwh"]),
+                      "cooling_cut_pct": _cut(off["mean"]["cooling_kwh"], on["mean"]["cooling_kwh"])}  # fmt: skip
+    return {"machine": machine_info(), "hours": hours, "days": [d.label for d in days], "rows": rows,
+            "guardrails": GUARDRAILS_ON if guardrails else GUARDRAILS_OFF_TEXT, "published": LCOPT_HRU_EFFECT,
+            "runs": runs}  # fmt: skip
+
+
+def _cut(before: float, after: float) -> float:
+    return 100.0 * (before - after) / before if before else 0.0
+
+
+def render_hru(r: dict) -> str:
+    """The BENCHMARKS.md section: per controller, tower fans, cooling energy and D_blade without and with the HRU."""
+    lines = [
+        "## Heat recovery on the suite (`lcmesh bench suite --hru --json runs/bench/hru.json --markdown BENCHMARKS.md`)",
+        "",
+        f"lcopt-5 without and with the heat-recovery unit (lcopt-5-hru: UA 150 kW/K to a 20 C district loop at 20 kg/s), "
+        f"{len(r['days'])} test days of {r['hours']:g} h, means over the days; guardrails: {r['guardrails']}. "
+        f"Published: {r['published']}.",
+        "",
+        "| controller | tower fans kWh (no HRU / HRU) | fan cut % | cooling kWh (no HRU / HRU) | cooling cut % | "
+        "D_blade % (no HRU / HRU) | heat recovered kWh |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, row in r["rows"].items():
+        if row["error"] is not None:
+            lines.append(f"| {name} | not run: {row['error'].replace('|', '/')} | | | | | |")
+            continue
+        lines.append(
+            f"| {name} | {row['tower_fan_kwh_off']:,.0f} / {row['tower_fan_kwh_on']:,.0f} | {row['fan_cut_pct']:.1f} | "
+            f"{row['cooling_kwh_off']:,.0f} / {row['cooling_kwh_on']:,.0f} | {row['cooling_cut_pct']:.1f} | "
+            f"{row['d_blade_pct_off']:.2f} / {row['d_blade_pct_on']:.2f} | {row['heat_recovered_kwh']:,.0f} |"
+        )  # fmt: skip
+    m = r["machine"]
+    lines += ["", f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}."]
+    return "\n".join(lines)
+
+
+def _day_cell(day: dict) -> str:
+    return (f"{day['d_blade_pct']:.2f} / {day['cooling_kwh']:.0f} / {day['blade_max_c']:.1f} / "
+            f"{day['travel']['supply_temp_setpoint_k']:,.0f}")  # fmt: skip
+
+
+def deploy_checks(r: dict, learned: tuple[str, ...] = ("ppo", "readable", "tree", "llm")) -> list[dict]:
+    """Issue 23's targets on this result, for each learned controller that ran: value, target, met or not.
+
+    Against G36 and the strong rule (``rule``) per day; the look-ahead's energy against every controller at equal
+    or better D_blade. Empty when G36 did not run.
+    """
+    ok = {n: e for n, e in r["controllers"].items() if e["error"] is None}
+    if "g36" not in ok:
+        return []
+    g36 = ok["g36"]
+    labels = [d["label"] for d in r["days"]]
+    checks = []
+
+    def add(name: str, target: str, measured: str, met: bool) -> None:
+        checks.append({"controller": name, "target": target, "measured": measured, "met": bool(met)})
+
+    for name in (n for n in learned if n in ok):
+        e = ok[name]
+        loss = max(g36["days"][d]["d_blade_pct"] - e["days"][d]["d_blade_pct"] for d in labels)
+        worst = max(labels, key=lambda d: g36["days"][d]["d_blade_pct"] - e["days"][d]["d_blade_pct"])
+        bound = 1.0 if name != "readable" else 0.2
+        add(name, f"no day lost to G36 by more than {bound:g} point(s)", f"worst {loss:+.2f} ({worst})", loss <= bound)
+        if name in ("ppo", "llm"):
+            mean, g_mean = e["mean"]["d_blade_pct"], g36["mean"]["d_blade_pct"]
+            rule = ok.get("rule", {}).get("mean", {}).get("d_blade_pct", float("nan"))
+            add(name, "mean D_blade above G36's and the strong rule's", f"{mean:.2f} vs {g_mean:.2f} / {rule:.2f}",
+                mean > g_mean and mean > rule)  # fmt: skip
+            if "rule" in ok:
+                ratio = e["mean"]["cooling_kwh"] / ok["rule"]["mean"]["cooling_kwh"]
+                add(name, "cooling energy <= 0.8x the strong rule's", f"{ratio:.2f}x", ratio <= 0.8)
+            ratios = [e["days"][d]["travel"]["supply_temp_setpoint_k"]
+                      / max(g36["days"][d]["travel"]["supply_temp_setpoint_k"], 1e-9) for d in labels]  # fmt: skip
+            add(name, "supply travel <= 3x G36's, every day", f"{min(ratios):.1f}x to {max(ratios):.1f}x",
+                max(ratios) <= 3.0)  # fmt: skip
+            hot = [e["days"][d]["blade_max_c"] - g36["days"][d]["blade_max_c"] for d in labels]
+            add(name, "hottest blade <= G36's + 1 K, every day", f"{min(hot):+.1f} to {max(hot):+.1f} K",
+                max(hot) <= 1.0)  # fmt: skip
+    if "lookahead" in ok:
+        la = ok["lookahead"]
+        beaten = [f"{n} on {d}" for n, e in ok.items() if n != "lookahead" for d in labels
+                  if e["days"][d]["d_blade_pct"] >= la["days"][d]["d_blade_pct"]
+                  and e["days"][d]["cooling_kwh"] < la["days"][d]["cooling_kwh"]]  # fmt: skip
+        add("lookahead", "no controller uses less cooling energy at equal or better D_blade, any day",
+            f"{len(beaten)} beat it" + (f": {', '.join(beaten[:6])}" if beaten else ""), not beaten)  # fmt: skip
+    return checks
 
 
 def plot_pareto(r: dict, path: str | Path) -> Path:

@@ -142,7 +142,7 @@ def bench_actions(
 @bench_app.command("suite")
 def bench_suite(
     controllers: Annotated[str, typer.Option(help="comma-separated controller names (registry or 'package.module:Class')")] = (
-        "static,g36,rule,lookahead,ppo,tree"
+        "static,g36,rule,lookahead,ppo,tree,readable"
     ),
     system: Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")] = (
         "lcopt-5"
@@ -154,9 +154,15 @@ def bench_suite(
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
     plots: Annotated[Path, typer.Option(help="folder for suite_pareto.png")] = Path("docs/img"),
+    guardrails: Annotated[bool, typer.Option("--guardrails/--no-guardrails", help="every action through the mesh's "
+                                             "guardrails, as the mesh applies it (off: the paper's setting)")] = True,
+    hru: Annotated[bool, typer.Option(help="each controller without and with the heat-recovery unit (lcopt-5 and "
+                                      "lcopt-5-hru) instead of the regret table")] = False,
 ) -> None:
     """Every controller on the held-out days (lcmesh/bench/suite.py): mean ± std, per-day figures, regret (issue 13)."""
-    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, plot_pareto, render_suite, run_suite
+    from lcmesh.bench.suite import (
+        TEST_DAYS, VALIDATION_DAYS, days_named, deploy_checks, plot_pareto, render_hru, render_suite, run_hru, run_suite,
+    )  # fmt: skip
     from lcmesh.cli.common import load_system_or_fail
 
     names = [n.strip() for n in controllers.split(",") if n.strip()]
@@ -170,8 +176,23 @@ def bench_suite(
         fail(f"`--days`: {exc}")
     if not chosen:
         fail(f"`--days` must name at least one day, got {days!r}")
+    if hru:
+        with stage_progress("held-out days, without and with the HRU") as on_progress:
+            result = run_hru(names, chosen, hours=hours, progress=on_progress, guardrails=guardrails)
+        for name, row in result["rows"].items():
+            if row["error"] is not None:
+                console.print(f"[yellow]{name}: not run[/yellow] ({row['error']})")
+            else:
+                console.print(f"{name}: tower fans -{row['fan_cut_pct']:.1f} %, cooling -{row['cooling_cut_pct']:.1f} % "
+                              f"with the HRU; D_blade {row['d_blade_pct_off']:.2f} -> {row['d_blade_pct_on']:.2f} %")  # fmt: skip
+        write_bench(json_out, markdown, "hru", result, render=render_hru)
+        return
     with stage_progress("held-out days") as on_progress:
-        result = run_suite(names, system, chosen, hours=hours, reference=reference, progress=on_progress)
+        result = run_suite(names, system, chosen, hours=hours, reference=reference, progress=on_progress,
+                           guardrails=guardrails)  # fmt: skip
+    for check in deploy_checks(result):
+        colour = "green" if check["met"] else "yellow"
+        console.print(f"[{colour}]{check['controller']}: {check['target']}: {check['measured']}[/{colour}]")
     for name, entry in result["controllers"].items():
         if entry["error"] is not None:
             console.print(f"[yellow]{name}: not run[/yellow] ({entry['error']})")

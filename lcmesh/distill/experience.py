@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from lcmesh.twin.controllers.base import Controller, Observation
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS, guard, spinup_action
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.system import SystemDescription
 from lcmesh.twin.traces import load_trace, scenario_with_offset
@@ -86,12 +87,17 @@ def collect_experience(
     wet_bulb_offset_k: float = 15.0,
     spinup_hours: float = 1.0,
     on_step: Callable[[int], None] | None = None,
+    guardrails=MESH_GUARDRAILS,
 ) -> Experience:
     """Roll ``teacher`` over each trace (``n_steps`` each, default all) and record what it saw and did.
 
     A trace ``SPEC@SCENARIO`` runs under that scenario; a bare spec under ``lcopt`` with ``wet_bulb_offset_k``.
+    The teacher runs behind ``guardrails`` (the mesh's by default; None: bare), so the states recorded are those
+    the mesh would visit and the actions recorded are those it would apply.
     """
     from lcmesh.distill.features import FeatureBuilder
+
+    teacher = guard(teacher, system, guardrails)
 
     traces = [traces] if isinstance(traces, str) else list(traces)
     features = FeatureBuilder(system)
@@ -108,7 +114,7 @@ def collect_experience(
             power = np.zeros(system.n_blade_groups)
             teacher.reset()
             first = Observation(plant.out, float(trace.wet_bulb_k[0]), trace.blade_power_w(0, out=power), 0.0)
-            plant.spin_up(power, first.wet_bulb_k, teacher.act(first), hours=spinup_hours)
+            plant.spin_up(power, first.wet_bulb_k, spinup_action(teacher, first), hours=spinup_hours)
             out = plant.reset()
             teacher.reset()
             for k in range(steps):

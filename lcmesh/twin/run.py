@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.twin.controllers import Controller, Observation
-from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS, guard, guardrail_report
+from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS, guard, guardrail_report, spinup_action
 from lcmesh.twin.kpi import KpiAccumulator
 from lcmesh.twin.plant import Plant
 from lcmesh.twin.traces import Trace
@@ -89,7 +89,7 @@ def run_twin(
     first = Observation(plant.out, float(trace.wet_bulb_k[0]), trace.blade_power_w(0, out=power), 0.0)
     if spinup_hours > 0:
         plant.restart()
-        plant.spin_up(power, first.wet_bulb_k, controller.act(first), hours=spinup_hours)
+        plant.spin_up(power, first.wet_bulb_k, spinup_action(controller, first), hours=spinup_hours)
     out = plant.reset()
     controller.reset()
     kpi = KpiAccumulator()

@@ -16,7 +16,7 @@ from lcmesh.cli import app
 from lcmesh.distill.tree_config import TreeDistillConfig
 from lcmesh.twin.traces import EVAL_SEEDS, FRONTIER_DAY, TRAIN_SEEDS
 
-DAY_KEYS = {*FIGURES, "it_kwh", "travel"}
+DAY_KEYS = {*FIGURES, "it_kwh", "travel", "heat_recovered_kwh", "guardrails"}
 LABELS = ("frontier", "mild-1010", "hot-1003")  # one Frontier, one mild and one hot day
 
 

@@ -12,6 +12,8 @@ counted: steps decided, steps with at least one clamp, values clamped, proposals
 
 from __future__ import annotations
 
+import numpy as np
+
 from lcmesh.mesh.tools.guardrails import GuardrailLimits, apply_guardrails
 from lcmesh.twin.controllers.base import Controller, Observation
 from lcmesh.twin.plant import PlantAction
@@ -64,6 +66,8 @@ class Guarded:
     def act(self, obs: Observation) -> PlantAction:
         proposed = self.inner.act(obs)
         previous = self._last if self._last is not None else applied_action(obs.out)
+        if self._last is None and not np.all(previous.supply_temp_setpoint_k > 0.0):
+            previous = proposed  # a plant that has applied nothing yet: the ranges only
         result = apply_guardrails(proposed, previous, obs.wet_bulb_k, self.limits, self.system)
         if result.action is None:  # rejected: hold what is in force, as the Sensor does
             self.rejected += 1
@@ -73,6 +77,15 @@ class Guarded:
             self.clamped_steps += 1
             self.clamped_values += len(result.clamps)
         self._last = result.action.copy()
+        return result.action
+
+    def spinup_action(self, obs: Observation) -> PlantAction:
+        """The action a spin-up holds: the proposal inside the ranges, with no rate limit (nothing is applied yet;
+        the mesh's Sensor spins up on its first G36 action the same way)."""
+        proposed = self.inner.act(obs)
+        result = apply_guardrails(proposed, proposed, obs.wet_bulb_k, self.limits, self.system)
+        if result.action is None:
+            raise ValueError(f"{self.name}: its first action can not be applied: {result.rejected}")
         return result.action
 
     def report(self) -> dict:
@@ -93,6 +106,11 @@ def guard(controller: Controller, system: SystemDescription, limits: GuardrailLi
     if limits is None or isinstance(controller, Guarded):
         return controller
     return Guarded(controller, system, limits)
+
+
+def spinup_action(controller: Controller, obs: Observation) -> PlantAction:
+    """What a run spins the plant up on: ``Guarded.spinup_action``, or a bare controller's own action."""
+    return controller.spinup_action(obs) if isinstance(controller, Guarded) else controller.act(obs)
 
 
 def guardrail_report(controller: Controller) -> dict:
