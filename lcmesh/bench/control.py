@@ -228,17 +228,21 @@ def render_control(r: dict) -> str:
              "LC-Opt's scenario, for comparison with the paper; the Frontier-credible plant's figures are the "
              "tracking and sweep tables below.", "",
              "### Ablation (paper Table 3)", "",
-             "| case | control | D_blade % | CT power kW | IT cooling kW | pump kW | reward / cabinet | reward / tower | training |",
-             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "Every controller behind the mesh's guardrails (GuardrailLimits defaults). Hottest blade: the day's hottest "
+             "blade group; supply travel: summed |change| of the applied supply setpoints over the day and the CDUs.", "",
+             "| case | control | D_blade % | hottest blade C | supply travel K | CT power kW | IT cooling kW | pump kW | "
+             "reward / cabinet | reward / tower | training |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for case, v in r["ablation"].items():
         title = "static rule (LC-Opt default)" if case == "static" else v.get("title", "")
         if "missing" in v:
-            lines.append(f"| {case} | {title} | {v['missing']} | | | | | | |")
+            lines.append(f"| {case} | {title} | {v['missing']} | | | | | | | | |")
             continue
         train = (f"{v['training_wall_s'] / 60:.0f} min, {v['training_env_steps'] / 1e3:.0f}k steps"
                  if v.get("training_wall_s") else "")  # fmt: skip
         rew = (f"{v['cabinet_reward']:.1f} | {v['tower_reward']:.1f}" if "cabinet_reward" in v else " | ")
-        lines.append(f"| {case} | {title} | {v['d_blade_pct']:.2f} | {v['ct_power_kw_avg']:.1f} | "
+        lines.append(f"| {case} | {title} | {v['d_blade_pct']:.2f} | {v.get('blade_max_c', float('nan')):.1f} | "
+                     f"{v.get('supply_travel_k', float('nan')):,.0f} | {v['ct_power_kw_avg']:.1f} | "
                      f"{v['it_cooling_kw_avg']:.0f} | {v['pump_power_kw_avg']:.1f} | {rew} | {train} |")  # fmt: skip
     if "targets" in r:
         lines += ["", "Targets (case 7 vs G36): " + ", ".join(f"{k}: {'met' if ok else 'NOT met'}" for k, ok in r["targets"].items())]

@@ -260,6 +260,8 @@ def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
         if "error" not in row and row["days"]:
             got = list(row["days"].values())
             row["mean"] = {k: float(np.mean([d[k] for d in got])) for k in ("d_blade_pct", "cooling_kwh", "blade_max_c")}
+            row["mean"]["travel"] = {k: float(np.mean([d["travel"][k] for d in got]))
+                                     for k in ("supply_temp_setpoint_k", "dp_setpoint_pa", "lw_setpoint_k")}  # fmt: skip
             row["std_d_blade"] = float(np.std([d["d_blade_pct"] for d in got], ddof=1)) if len(got) > 1 else 0.0
             if name == "llm":
                 row["llm_stats"] = _sum_stats([d.pop("llm_stats") for d in got])
@@ -350,9 +352,11 @@ def render_llm(r: dict) -> str:
     lines += ["", f"Closed loop on the held-out suite: each day's busiest {next(iter(cl['days'].values()))['hours']:g} h "
               "(highest mean load; start hour per day below) after a 30-min warm-up by the same controller, the LLM "
               f"deciding every {cl['period_steps']} steps "
-              "(Figure 10). D_blade % per day; mean over the days and cooling kWh per window:", "",
-              "| controller | mean D_blade % | mean cooling kWh | worst blade °C | " + " | ".join(labels) + " |",
-              "|---|---|---|---|" + "---|" * len(labels)]  # fmt: skip
+              "(Figure 10), every controller behind the mesh's guardrails. D_blade % per day; mean over the days, "
+              "cooling kWh and supply / dp / tower leaving-water travel per window:", "",
+              "| controller | mean D_blade % | mean cooling kWh | worst blade °C | supply travel K | dp travel psi | "
+              "tower LW travel K | " + " | ".join(labels) + " |",
+              "|---|---|---|---|---|---|---|" + "---|" * len(labels)]  # fmt: skip
     for name, row in cl["controllers"].items():
         if "error" in row:
             lines.append(f"| {name} | not available: {row['error'][:80]} |")
@@ -361,8 +365,12 @@ def render_llm(r: dict) -> str:
             continue
         worst = max(d["blade_max_c"] for d in row["days"].values())
         cells = " | ".join(f"{row['days'][d]['d_blade_pct']:.2f}" if d in row["days"] else "-" for d in labels)
+        tr = row["mean"].get("travel", {})
+        nan = float("nan")
         lines.append(f"| {name} | {row['mean']['d_blade_pct']:.2f} +- {row['std_d_blade']:.2f} | "
-                     f"{row['mean']['cooling_kwh']:.0f} | {worst:.1f} | {cells} |")  # fmt: skip
+                     f"{row['mean']['cooling_kwh']:.0f} | {worst:.1f} | {tr.get('supply_temp_setpoint_k', nan):,.0f} | "
+                     f"{tr.get('dp_setpoint_pa', nan) / 6894.757:,.0f} | {tr.get('lw_setpoint_k', nan):,.0f} | "
+                     f"{cells} |")  # fmt: skip
     lines += ["", "Window start hour per day: " + ", ".join(f"{d} {w['start_h']:.2f}" for d, w in cl["days"].items())]
     llm = cl["controllers"].get("llm", {}).get("llm_stats")
     if llm:

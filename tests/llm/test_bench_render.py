@@ -13,7 +13,9 @@ def _result() -> dict:
     expl = {**expl, "llm_with_whatif_claim": 1, "whatif_claims": {"hottest_branch_if_held": 1}}
     day = {"d_blade_pct": 90.0, "cooling_kwh": 120.0, "blade_max_c": 39.0}
     row = {"days": {"frontier": day, "hot-1033": {**day, "d_blade_pct": 80.0}},
-           "mean": {"d_blade_pct": 85.0, "cooling_kwh": 120.0, "blade_max_c": 39.0}, "std_d_blade": 7.07}
+           "mean": {"d_blade_pct": 85.0, "cooling_kwh": 120.0, "blade_max_c": 39.0,
+                    "travel": {"supply_temp_setpoint_k": 42.0, "dp_setpoint_pa": 6894.757 * 3, "lw_setpoint_k": 7.0}},
+           "std_d_blade": 7.07}
     return {
         "machine": {"cpu": "cpu", "logical_cpus": 2, "commit": "abc", "date": "today", "load_avg_1m_at_start": 1.0,
                     "load_avg_1m_at_end": 2.0},
@@ -38,7 +40,7 @@ def _result() -> dict:
 
 def test_section_has_the_targets_and_the_figure_10_table(tmp_path):
     text = render_llm(_result())
-    for piece in ("<= 3", "<= 10", "<= 5", ">= 0.9", "0.910", "| g36 | 85.00 +- 7.07 | 120 | 39.0 | 90.00 | 80.00 |",
+    for piece in ("<= 3", "<= 10", "<= 5", ">= 0.9", "0.910", "| g36 | 85.00 +- 7.07 | 120 | 39.0 | 42 | 3 | 7 | 90.00 | 80.00 |",
                   "| tree | not available", "1 answers rejected and served by ppo ({'tower': 1}", "15.0 vs 0.70",
                   "--hours 24 --period 8", "5 cabinets, 2 towers", "what-if claim the rendering lacks (of 2",
                   "frontier 5.50, hot-1033 14.00"):
