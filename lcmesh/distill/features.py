@@ -201,6 +201,35 @@ def encode_cabinet(action: PlantAction) -> np.ndarray:
     return np.column_stack([s, d, action.valve_fractions])
 
 
+@dataclass(frozen=True)
+class HoldBand:
+    """How far a learned policy's target must move from the applied setpoint before the setpoint moves."""
+
+    supply_k: float = 1.0
+    dp_psi: float = 1.0
+    lw_k: float = 0.5
+
+    def apply(self, action: PlantAction, out) -> PlantAction:
+        """Keep each CDU's supply and dp and each tower's leaving-water setpoint where the plant applies it, unless
+        the target leaves the band around it (in place; returns ``action``). Valves are not held.
+
+        A deadband, as building controls put on their setpoints: a policy's output wanders with its inputs by a
+        fraction of a kelvin at every step, and moving the plant for that buys nothing. The reference is the
+        plant's applied setpoint (``out``), so the hold is the same in the twin, the benches and the mesh.
+        """
+        for name, key, band in (("supply_temp_setpoint_k", "applied_supply_setpoint_k", self.supply_k),
+                                ("dp_setpoint_pa", "applied_dp_setpoint_pa", self.dp_psi * PSI_TO_PA),
+                                ("lw_setpoint_k", "applied_lw_setpoint_k", self.lw_k)):  # fmt: skip
+            target, applied = getattr(action, name), np.asarray(out[key], dtype=float).reshape(-1)
+            if applied.shape == target.shape and np.all(applied > 0.0):  # the plant has applied something
+                np.copyto(target, applied, where=np.abs(target - applied) <= band)
+        return action
+
+
+DEFAULT_HOLD = HoldBand()
+"""The learned controllers' hold band (``hold=None`` turns it off: the policy's raw output)."""
+
+
 class TowerSetpoints:
     """Turns each tower's discrete choice into its leaving-water setpoint (wet bulb + approach level)."""
 

@@ -18,7 +18,7 @@ from torch import nn
 from torch.distributions import Categorical, Dirichlet, Normal
 
 from lcmesh.distill.features import (
-    APPROACH_LEVELS_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
+    APPROACH_LEVELS_K, DEFAULT_HOLD, FeatureBuilder, FeatureLayout, HoldBand, TowerSetpoints, decode_cabinet,
 )  # fmt: skip
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.controllers.g36 import G36Controller
@@ -208,8 +208,10 @@ class PpoController:
         *,
         loaded: tuple[dict[str, AgentNet], PolicyFile] | None = None,
         pool_cells: bool = False,
+        hold: HoldBand | None = DEFAULT_HOLD,
     ):
         path = Path(policy) if policy is not None else DEFAULT_POLICY
+        self.hold = hold
         self.nets, self.meta = loaded if loaded is not None else load_policy(path)
         layout = FeatureLayout(**self.meta.layout)
         layout.check(system, f"policy {path}", pool_cells=pool_cells)
@@ -251,6 +253,8 @@ class PpoController:
         if "tower" in self.nets:
             choice = policy_mode(self.nets["tower"], self.features.tower_rows(obs), self.meta.std)
             self.towers.apply(choice[:, 0] if choice.ndim == 2 else choice, obs.wet_bulb_k, action)
+        if self.hold is not None:
+            self.hold.apply(action, obs.out)
         return action
 
     @torch.no_grad()

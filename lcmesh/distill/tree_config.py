@@ -32,8 +32,9 @@ class TreeDistillConfig:
     scenarios: str = "frontier,design-day"
     """Scenarios of the training, held-out and reward traces (comma list; seed s runs under scenario s mod their
     count); ``frontier,design-day`` for a teacher trained on the real-load plant."""
-    reward: str = "energy"
-    """The reward the episode rewards and the gap are measured in (the teacher's training reward)."""
+    reward: str = "deploy"
+    """The reward the episode rewards and the gap are measured in (the teacher's training reward: the shipped
+    policy's is ``deploy``, lcmesh/distill/ppo_env.py)."""
     rules_depth: int = 5
     """Levels of each tree written to the rules file (a readable tree: all of them)."""
     seed: int = 0
@@ -59,8 +60,8 @@ class TreeDistillConfig:
                                  f"{', '.join(map(str, held_out_seeds()))} (the defaults use 1100-1110)")  # fmt: skip
         if self.max_leaves < 0 or self.max_leaves == 1:
             raise ValueError(f"`max_leaves` must be 0 (no limit) or >= 2, got {self.max_leaves}")
-        if self.reward not in ("lcopt", "energy", "energy_smooth"):
-            raise ValueError(f"`reward` must be 'lcopt', 'energy' or 'energy_smooth', got {self.reward!r}")
+        if self.reward not in ("lcopt", "energy", "energy_smooth", "deploy"):
+            raise ValueError(f"`reward` must be 'lcopt', 'energy', 'energy_smooth' or 'deploy', got {self.reward!r}")
         if not self.scenario_list():
             raise ValueError("`scenarios` must name at least one scenario")
         for name in ("samples", "max_depth_cdu", "max_depth_valves", "max_depth_tower", "min_samples_leaf", "rules_depth"):

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.distill.features import (
-    APPROACH_LEVELS_K, DP_RANGE_PA, SUPPLY_RANGE_K, FeatureBuilder, FeatureLayout, TowerSetpoints, decode_cabinet,
+    APPROACH_LEVELS_K, DEFAULT_HOLD, DP_RANGE_PA, SUPPLY_RANGE_K, FeatureBuilder, FeatureLayout, HoldBand,
+    TowerSetpoints, decode_cabinet,
 )  # fmt: skip
 from lcmesh.twin.controllers.base import Observation
 from lcmesh.twin.controllers.g36 import G36Controller
@@ -209,8 +210,10 @@ class TreeController:
 
     name = "tree"
 
-    def __init__(self, system: SystemDescription, policy: str | Path | None = None, pool_cells: bool = False):
+    def __init__(self, system: SystemDescription, policy: str | Path | None = None, pool_cells: bool = False,
+                 hold: HoldBand | None = DEFAULT_HOLD):
         path = Path(policy) if policy is not None else DEFAULT_TREES
+        self.hold = hold
         self.trees, layout, self.manifest = load_trees(path)
         layout.check(system, f"tree file {path}", pool_cells=pool_cells)
         self.version = str(self.manifest.get("version", "1"))
@@ -239,6 +242,8 @@ class TreeController:
         if "tower" in self.trees:
             choice = self.trees["tower"].predict(self.features.tower_rows(obs))[:, 0]
             self.towers.apply(np.rint(choice).astype(np.int64), obs.wet_bulb_k, action)
+        if self.hold is not None:
+            self.hold.apply(action, obs.out)
         return action
 
 
@@ -247,8 +252,9 @@ class ReadableTreeController(TreeController):
 
     name = "readable"
 
-    def __init__(self, system: SystemDescription, policy: str | Path | None = None, pool_cells: bool = False):
-        super().__init__(system, policy if policy is not None else READABLE_TREES, pool_cells)
+    def __init__(self, system: SystemDescription, policy: str | Path | None = None, pool_cells: bool = False,
+                 hold: HoldBand | None = DEFAULT_HOLD):
+        super().__init__(system, policy if policy is not None else READABLE_TREES, pool_cells, hold)
 
 
 __all__ = ["APPROACH_LEVELS_K", "ReadableTreeController", "Tree", "TreeController", "load_trees", "output_in_units", "rules_text", "save_trees", "tree_rules"]
