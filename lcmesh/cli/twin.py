@@ -113,8 +113,11 @@ def twin_run(
                                              "policy was trained for")] = False,  # fmt: skip
     json_out: JsonOpt = None,
     plot: Annotated[Optional[Path], typer.Option(help="PNG plot (default: beside --json)")] = None,
+    guardrails: Annotated[bool, typer.Option("--guardrails/--no-guardrails", help="every action through the mesh's "
+                                             "guardrails, as the mesh applies it (off: the paper's setting)")] = True,
 ) -> None:
     """Run a controller on the twin over a trace; KPIs as JSON, a progress bar, a PNG plot."""
+    from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS
     from lcmesh.twin.controllers import make_controller
     from lcmesh.twin.plant import Plant
     from lcmesh.twin.run import plot_run, run_twin
@@ -140,7 +143,8 @@ def twin_run(
         task = progress.add_task(f"{desc.name} / {controller}", total=n_steps)
         every = max(1, n_steps // 200)
         result = run_twin(plant, tr, ctrl, n_steps=n_steps, record_every=max(1, n_steps // 2000),
-                          on_step=lambda k: (k + 1) % every == 0 and progress.update(task, completed=k + 1))  # fmt: skip
+                          on_step=lambda k: (k + 1) % every == 0 and progress.update(task, completed=k + 1),
+                          guardrails=MESH_GUARDRAILS if guardrails else None)  # fmt: skip
         progress.update(task, completed=n_steps)
     data = result.to_json()
     plot_path = plot or (json_out.with_suffix(".png") if json_out else None)
@@ -151,6 +155,12 @@ def twin_run(
         f"d_blade {k['d_blade_pct']:.2f} %  CT {k['ct_power_kw_avg']:.1f} kW  IT cooling {k['it_cooling_kw_avg']:.0f} kW"
         f"  energy balance {k['energy_balance_error_pct']:.2e} %  {result.realtime_factor:,.0f}x real time"
     )
+    g = result.guardrails
+    if g["guardrails"] == "off":
+        console.print("guardrails off: the controller's actions went to the plant as proposed (the mesh would clamp them)")
+    else:
+        console.print(f"guardrails (the mesh's): {g['clamped_steps']:,} of {g['steps']:,} decisions clamped "
+                      f"({g['clamped_steps_pct']:.1f} %), {g['rejected']} rejected and held")  # fmt: skip
     if result.controller_cost is not None:
         cost = result.controller_cost
         console.print(f"{result.controller} simulated {cost['sim_steps']:,} plant steps in {cost['wall_s']:.1f} s")

@@ -186,9 +186,11 @@ def plot_run(result: RunResult, path: str | Path) -> Path:
     ax.axhline(20, color="k", ls=":", lw=0.8)
     ax.axhline(40, color="r", ls=":", lw=0.8, label="20-40 C band")
     ax.set_ylabel("blade temp (C)")
+    g = result.guardrails
+    guard_note = "no guardrails" if g["guardrails"] == "off" else f"guardrails clamped {g['clamped_steps_pct']:.0f} %"
     ax.set_title(
         f"{result.system} | {result.trace} | {result.controller}: d_blade {result.kpi['d_blade_pct']:.1f} %, "
-        f"CT {result.kpi['ct_power_kw_avg']:.1f} kW"
+        f"CT {result.kpi['ct_power_kw_avg']:.1f} kW, hottest {result.kpi['blade_temp_max_c']:.1f} C, {guard_note}"
     )
     ax.legend(loc="upper right", fontsize=8)
     ax = axes[1]

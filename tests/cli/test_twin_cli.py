@@ -28,7 +28,15 @@ def test_twin_run_on_a_synthetic_trace(tmp_path):
     result = runner.invoke(app, ["twin", "run", "--trace", "synthetic:1234", "--hours", "0.5",
                                  "--json", str(tmp_path / "s.json")])  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert json.loads((tmp_path / "s.json").read_text())["trace"] == "synthetic:1234"
+    data = json.loads((tmp_path / "s.json").read_text())
+    assert data["trace"] == "synthetic:1234"
+    assert data["guardrails"]["guardrails"] == "mesh" and data["guardrails"]["steps"] == 120  # the mesh's, by default
+    assert "guardrails (the mesh's):" in result.output
+    bare = runner.invoke(app, ["twin", "run", "--trace", "synthetic:1234", "--hours", "0.5", "--no-guardrails",
+                               "--json", str(tmp_path / "bare.json")])  # fmt: skip
+    assert bare.exit_code == 0, bare.output
+    assert json.loads((tmp_path / "bare.json").read_text())["guardrails"] == {"guardrails": "off"}
+    assert "guardrails off" in bare.output
 
 
 def test_bad_input_is_a_clear_error_not_a_traceback(tmp_path):
