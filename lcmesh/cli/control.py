@@ -23,7 +23,9 @@ def dataclass_options(cls: type, run: Callable[[Any], None]) -> Callable[..., No
     for f in dataclasses.fields(cls):
         kind = hints[f.name]
         base = next((a for a in typing.get_args(kind) if a is not type(None)), kind)
-        option = typer.Option(f"--{f.name.replace('_', '-')}", help=docs.get(f.name, ""))
+        flag = f.name.replace("_", "-")
+        names = f"--{flag}/--no-{flag}" if base is bool else f"--{flag}"  # a bool can be turned both ways
+        option = typer.Option(names, help=docs.get(f.name, ""))
         params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default,
                                         annotation=Annotated[base, option]))  # fmt: skip
 
