@@ -22,14 +22,14 @@ from lcmesh.twin.traces import FRONTIER_DAY, load_trace
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "lcmesh" / "artifacts"
 WINDOW_STEPS = 480  # 2 h
-G36_COOLING_KW = 177.1  # G36 on the real-load window, measured like the rows below
+G36_COOLING_KW = 177.1  # G36 on the real-load window, measured like the rows below (177.07, behind the guardrails)
 
 # artifact, kind, D_blade % measured at shipping -> floor
 PAPER = [
-    ("ppo/case2", "ppo", 80.29, 79.0),
-    ("ppo/case3", "ppo", 82.11, 81.0),
-    ("ppo/case4", "ppo", 90.10, 89.0),
-    ("ppo/case5", "ppo", 84.65, 83.5),
+    ("ppo/case2", "ppo", 80.04, 79.0),
+    ("ppo/case3", "ppo", 82.06, 81.0),
+    ("ppo/case4", "ppo", 89.29, 88.0),
+    ("ppo/case5", "ppo", 84.04, 83.0),
     ("ppo/case6", "ppo", 100.0, 99.0),
     ("ppo/case7", "ppo", 100.0, 99.0),
     ("ppo/case7-64k", "ppo", 100.0, 99.0),
@@ -37,16 +37,20 @@ PAPER = [
     ("trees/case7-naive.json", "tree", 100.0, 99.0),
 ]
 REAL_LOAD = [
-    ("ppo/frontier-case7", "ppo", 99.79, 98.5),
-    ("trees/frontier-case7.json", "tree", 99.35, 98.0),
-    ("trees/frontier-case7-naive.json", "tree", 99.85, 98.5),
-    ("trees/frontier-case7-readable.json", "tree", 98.64, 97.5),
-    ("trees/frontier-case7-readable-naive.json", "tree", 99.58, 98.5),
+    ("ppo/frontier-case7", "ppo", 100.0, 98.5),
+    ("ppo/frontier-case7-energy", "ppo", 99.58, 98.5),
+    ("trees/frontier-case7.json", "tree", 100.0, 98.5),
+    ("trees/frontier-case7-naive.json", "tree", 100.0, 98.5),
+    ("trees/frontier-case7-readable.json", "tree", 100.0, 98.5),
+    ("trees/frontier-case7-readable-naive.json", "tree", 100.0, 98.5),
 ]
-# The ablation seeds (lcmesh bench ablation): every case 2-7 at seeds 0-2 scored 99.79-100 % on this window.
-ABLATION_MEASURED = {"case6-seed1": 99.79, "case6-seed2": 99.79, "case7-seed0": 99.79, "case7-seed1": 99.79}
+# The ablation seeds (lcmesh bench ablation): every case 2-7 at seeds 0-2 scored 99.58-100 % on this window
+# (measured behind the mesh's guardrails, as every run is since issue 23).
+ABLATION_MEASURED = {"case6-seed1": 99.78, "case6-seed2": 99.71, "case7-seed0": 99.58, "case7-seed1": 99.58}
 REAL_LOAD += [(f"ppo/frontier/case{c}-seed{s}", "ppo", ABLATION_MEASURED.get(f"case{c}-seed{s}", 100.0), 98.5)
               for c in range(2, 8) for s in range(3)]  # fmt: skip
+# The deploy-reward seeds (issue 23; seed 0 ships as ppo/frontier-case7)
+REAL_LOAD += [(f"ppo/frontier-deploy/case7-seed{s}", "ppo", 100.0, 98.5) for s in range(3)]
 
 
 def _window(system_name: str, scenario: str, start_step: int) -> tuple:
