@@ -131,6 +131,8 @@ def _limit(value, previous, name: str, low: float, high: float, rate: float, cla
     ranged = np.clip(proposed, low, high)
     prev = np.asarray(previous, dtype=float)
     limited = np.clip(ranged, prev - rate, prev + rate)
+    if np.array_equal(limited, proposed):
+        return limited  # nothing clamped (the common case, at every step of every run)
     for i in np.flatnonzero(ranged != proposed):
         clamps.append(Clamp(field=name, index=[int(i)], proposed=float(proposed[i]), applied=float(limited[i]),
                             reason=f"outside [{low:.6g}, {high:.6g}]"))  # fmt: skip
@@ -144,8 +146,11 @@ def _limit(value, previous, name: str, low: float, high: float, rate: float, cla
 def _limit_valves(proposed: np.ndarray, previous: np.ndarray, limits: GuardrailLimits, clamps: list[Clamp]):
     v_min, rate = limits.valve_fraction_min, limits.valve_rate
     limited = np.clip(proposed, previous - rate, previous + rate)
-    projected = np.array([project_valve_split(row, v_min) for row in limited])
-    for i, j in zip(*np.nonzero(np.abs(projected - proposed) > 1e-9)):
+    projected = project_valve_splits(limited, v_min)
+    changed = np.abs(projected - proposed) > 1e-9
+    if not changed.any():
+        return projected
+    for i, j in zip(*np.nonzero(changed)):
         if abs(limited[i, j] - proposed[i, j]) > 1e-12:
             reason = f"change from {previous[i, j]:.4f} exceeds the rate limit {rate} per step"
         elif proposed[i, j] < v_min:
@@ -155,6 +160,27 @@ def _limit_valves(proposed: np.ndarray, previous: np.ndarray, limits: GuardrailL
         clamps.append(Clamp(field="valve_fractions", index=[int(i), int(j)], proposed=float(proposed[i, j]),
                             applied=float(projected[i, j]), reason=reason))  # fmt: skip
     return projected
+
+
+def project_valve_splits(rows: np.ndarray, v_min: float) -> np.ndarray:
+    """:func:`project_valve_split` on every row of (C, B) at once (the guardrails run it at every step; a
+    frontier-full plant has 25 cabinets, and a loop over them cost a run 3x its speed)."""
+    x = np.maximum(np.asarray(rows, dtype=float), 0.0).reshape(-1, np.shape(rows)[-1])
+    n = x.shape[1]
+    x[x.sum(axis=1) <= 0.0] = 1.0 / n  # an all-zero or negative row: the equal split
+    pinned = np.zeros(x.shape, dtype=bool)
+    for _ in range(n):
+        free = ~pinned
+        room = 1.0 - v_min * pinned.sum(axis=1)
+        free_sum = np.where(free, x, 0.0).sum(axis=1)
+        spread = room / np.maximum(free.sum(axis=1), 1)
+        scaled = x * (room / np.where(free_sum > 0.0, free_sum, 1.0))[:, None]
+        x = np.where(free, np.where((free_sum > 0.0)[:, None], scaled, spread[:, None]), v_min)
+        newly = free & (x < v_min)
+        if not newly.any():
+            break
+        pinned |= newly
+    return x.reshape(np.shape(rows))
 
 
 def project_valve_split(fractions: np.ndarray, v_min: float) -> np.ndarray:

@@ -76,3 +76,15 @@ def test_limits_validate_themselves_and_against_the_plant(lcopt5):
         GuardrailLimits(dp_min_pa=300e3)
     with pytest.raises(ValueError, match="valve_fraction_min"):
         GuardrailLimits(valve_fraction_min=0.4).check_system(lcopt5)
+
+
+def test_the_vectorized_split_is_the_row_by_row_split():
+    from lcmesh.mesh.tools.guardrails import project_valve_splits
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        rows = rng.normal(0.3, 0.4, (int(rng.integers(1, 8)), 3))
+        rows[0] = 0.0 if rng.random() < 0.2 else rows[0]
+        v_min = float(rng.choice([0.0, 0.02, 0.05, 0.2]))
+        expected = np.array([project_valve_split(row, v_min) for row in rows])
+        np.testing.assert_allclose(project_valve_splits(rows, v_min), expected, atol=1e-12)
