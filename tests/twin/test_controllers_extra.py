@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from lcmesh.mesh.tools.guardrails import GuardrailLimits
 from lcmesh.twin.controllers import ControllerError, Observation, make_controller, mesh_refusal
 from lcmesh.twin.controllers.lookahead import NOT_ATTACHED
 from lcmesh.twin.controllers.rule import MIN_VALVE_FRACTION
@@ -19,18 +20,13 @@ from lcmesh.twin.run import run_twin
 from lcmesh.twin.traces import FRONTIER_DAY, load_trace
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "controllers.md"
+TRAINING_DAY = "synthetic:7"  # the look-ahead's tests run training days, never a test or validation day
 
 
 def _run(system, controller, trace, n_steps):
     """A run on a fresh plant: a plant's history would leak into the spin-up (G36 starts from measured values)."""
     with Plant(system) as plant:
         return run_twin(plant, trace, controller, n_steps=n_steps)
-
-
-def _cost(kpi: dict, system, hours: float, out_of_band_kwh: float = 1.0) -> float:
-    """The look-ahead's objective over a whole run: out-of-band blade-group-steps x 1 kWh + cooling kWh."""
-    out_of_band = (1.0 - kpi["d_blade_pct"] / 100.0) * kpi["steps"] * system.n_blade_groups
-    return out_of_band_kwh * out_of_band + kpi["cooling_power_kw_avg"] * hours
 
 
 # --- the strong rule ---------------------------------------------------------------------------------------------
@@ -87,34 +83,90 @@ class _Recording:
 
 
 def test_lookahead_leaves_the_plant_where_it_found_it_and_counts_its_steps(lcopt5):
-    n_steps, period, horizon, hours = 240, 4, 20, 1.0
-    trace = load_trace(FRONTIER_DAY, lcopt5, hours=hours)  # 240 steps: the last decisions' horizons are cut
+    n_steps, period, horizon, hours = 240, 8, 20, 1.0
+    trace = load_trace(TRAINING_DAY, lcopt5, hours=hours)  # 240 steps: the last decisions' horizons are cut
     look = make_controller("lookahead", lcopt5, period_steps=period, horizon_steps=horizon)
     ctl = _Recording(look)
     with Plant(lcopt5) as plant:
         outputs = []
-        run_twin(plant, trace, ctl, n_steps=n_steps, on_step=lambda k: outputs.append(plant.out["blade_temp_k"].copy()))
+        result = run_twin(
+            plant, trace, ctl, n_steps=n_steps, on_step=lambda k: outputs.append(plant.out["blade_temp_k"].copy())
+        )
         assert plant.n_steps_done == n_steps
-        # replay the chosen actions from the spun-up state, without the look-ahead: the same trajectory, bit for bit
+        # replay the proposed actions from the spun-up state, without the look-ahead and its guardrails: the same
+        # trajectory, bit for bit (so the guardrails changed nothing either)
         plant.reset()
         power = np.zeros(lcopt5.n_blade_groups)
         for k, action in enumerate(ctl.actions):
             out = plant.step(trace.blade_power_w(k, out=power), float(trace.wet_bulb_k[k]), action)
             np.testing.assert_array_equal(out["blade_temp_k"], outputs[k], err_msg=f"step {k}")
-    expected = sum(7 * min(horizon, trace.n_steps - k) for k in range(0, n_steps, period))
-    assert look.sim_steps == expected and look.decisions == n_steps // period
-    assert look.wall_s > 0
+    assert result.guardrails["clamped_values"] == 0 and result.guardrails["rejected"] == 0
+    assert look.decisions == n_steps // period and look.wall_s > 0
+    # a decision simulates the setting in force to the horizon's end, then at most every probe, pick and approach
+    # of each pass
+    least = sum(min(horizon, trace.n_steps - k) for k in range(0, n_steps, period))
+    per_pass = len(look.dp_psi) * len(look.supply_moves_k) + 1 + len(look.approaches_k)
+    assert least < look.sim_steps <= (1 + look.passes * per_pass) * least
 
 
-def test_lookahead_beats_g36_on_the_design_day(lcopt5):
-    hours = 1.0
-    trace = load_trace(FRONTIER_DAY, lcopt5, scenario="design-day")
-    n_steps = round(hours * 3600 / trace.step_s)
+def test_lookahead_moves_every_setpoint_within_the_guardrails(lcopt5):
+    """A cold hour (wet bulb 3-5 C: leaving water floored at 10 C) and settings far from the spin-up's: ramps,
+    never a clamp."""
+    trace = load_trace(TRAINING_DAY, lcopt5, hours=1.0)
+    look = make_controller("lookahead", lcopt5, period_steps=4, horizon_steps=12, approaches_k=(3.0, 10.0))
+    ctl = _Recording(look)
+    with Plant(lcopt5) as plant:
+        result = run_twin(plant, trace, ctl, n_steps=120)
+    limits = GuardrailLimits()
+    steps = [(a, b, float(trace.wet_bulb_k[k + 1])) for k, (a, b) in enumerate(zip(ctl.actions, ctl.actions[1:]))]
+    for a, b, wet_bulb_k in steps:
+        assert np.abs(b.supply_temp_setpoint_k - a.supply_temp_setpoint_k).max() <= limits.supply_temp_rate_k
+        assert np.abs(b.dp_setpoint_pa - a.dp_setpoint_pa).max() <= limits.dp_rate_pa
+        assert b.lw_setpoint_k.min() >= max(wet_bulb_k + limits.min_approach_k, limits.lw_min_k)
+    lw_steps = [np.abs(b.lw_setpoint_k - a.lw_setpoint_k).max() for a, b, _ in steps]
+    assert max(lw_steps) <= limits.lw_rate_k
+    assert result.guardrails["clamped_values"] == 0, result.guardrails
+
+
+def test_lookahead_minimises_energy_subject_to_the_band(lcopt5):
+    """Each decision's pick is the lexicographic minimum of what it tried: the fewest out-of-band blade-steps, then
+    the least cooling energy; no setting tried with as few blade-steps out of band uses less energy."""
+    trace = load_trace(TRAINING_DAY, lcopt5, scenario="design-day", hours=1.0)
+    picks = []
+
+    class Decisions(_Recording):
+        def reset(self):
+            super().reset()
+            picks.clear()
+
+        def act(self, obs):
+            action = super().act(obs)
+            if self.inner.last_costs and self.inner.decisions > len(picks):
+                picks.append((self.inner.setting, dict(self.inner.last_costs)))
+            return action
+
+    for search in ("grid", "coordinate"):
+        look = make_controller("lookahead", lcopt5, period_steps=20, horizon_steps=20, search=search,
+                               supply_moves_k=(-2.0, 0.0, 2.0), dp_psi=(25.0, 33.0), approaches_k=(3.0, 8.0))  # fmt: skip
+        with Plant(lcopt5) as plant:
+            run_twin(plant, trace, Decisions(look), n_steps=60)
+        assert len(picks) == 3
+        for setting, costs in picks:
+            assert costs[setting] == min(costs.values()), (search, setting, costs)
+            out_of_band, kwh = costs[setting]
+            assert not [c for c in costs.values() if c[0] <= out_of_band and c[1] < kwh]
+
+
+def test_lookahead_beats_g36_on_a_hot_hour(lcopt5):
+    trace = load_trace("synthetic:3", lcopt5, scenario="design-day", hours=1.0)  # a training day; 0.75 -> 4.8 MW
+    n_steps = trace.n_steps
     g36 = _run(lcopt5, make_controller("g36", lcopt5), trace, n_steps)
     look = _run(lcopt5, make_controller("lookahead", lcopt5), trace, n_steps)
-    assert look.controller_cost["sim_steps"] == (n_steps // 4) * 7 * 120
-    # measured: look-ahead 150.5, G36 182.6 (no blade out of band for either)
-    assert _cost(look.kpi, lcopt5, hours) <= _cost(g36.kpi, lcopt5, hours)
+    assert look.controller_cost["sim_steps"] >= (n_steps // 8) * 120
+    # measured: look-ahead 100 % at 130.2 kWh, G36 100 % at 184.5 kWh (the issue's target: no controller uses less
+    # cooling energy at equal or better D_blade)
+    assert look.kpi["d_blade_pct"] >= g36.kpi["d_blade_pct"]
+    assert look.kpi["cooling_power_kw_avg"] < 0.9 * g36.kpi["cooling_power_kw_avg"]
 
 
 def test_lookahead_outside_a_run_says_where_it_runs(lcopt5, plant):

@@ -149,7 +149,7 @@ def _limit_valves(proposed: np.ndarray, previous: np.ndarray, limits: GuardrailL
     projected = project_valve_splits(limited, v_min)
     changed = np.abs(projected - proposed) > 1e-9
     if not changed.any():
-        return projected
+        return proposed.copy()  # a valid split passes bit for bit (the projection may round its last digit)
     for i, j in zip(*np.nonzero(changed)):
         if abs(limited[i, j] - proposed[i, j]) > 1e-12:
             reason = f"change from {previous[i, j]:.4f} exceeds the rate limit {rate} per step"
