@@ -452,7 +452,9 @@ def deploy_checks(r: dict, learned: tuple[str, ...] = ("ppo", "readable", "tree"
         loss = max(g36["days"][d]["d_blade_pct"] - e["days"][d]["d_blade_pct"] for d in labels)
         worst = max(labels, key=lambda d: g36["days"][d]["d_blade_pct"] - e["days"][d]["d_blade_pct"])
         bound = 1.0 if name != "readable" else 0.2
-        add(name, f"no day lost to G36 by more than {bound:g} point(s)", f"worst {loss:+.2f} ({worst})", loss <= bound)
+        verdict = "no day lost" if loss <= 0 else f"largest loss {loss:.2f} points ({worst})"
+        add(name, f"no day lost to G36 by more than {bound:g} point(s)",
+            f"{verdict}; G36 minus {name} at most {loss:+.2f} points", loss <= bound)  # fmt: skip
         if name in ("ppo", "llm"):
             mean, g_mean = e["mean"]["d_blade_pct"], g36["mean"]["d_blade_pct"]
             rule = ok.get("rule", {}).get("mean", {}).get("d_blade_pct", float("nan"))
