@@ -269,11 +269,12 @@ def test_a_reversed_direction_is_caught(cases, lang, mirror):
     text, facts = written(tool, result, args, lang)
     verb, flipped = (WENT_DOWN[lang], WENT_UP[lang]) if result["change"] < 0 else (WENT_UP[lang], WENT_DOWN[lang])
     assert verb in text and _kinds(text.replace(verb, flipped), facts) == ["wrong_direction"]
-    tool, result, args = _case(cases, "decision", action=None)
+    # the latest decision that moved a valve (the hold band of the learned controllers keeps most steps still)
+    tool, result, args = _case(cases, "decision", action="valve")
     result = _mirrored(tool, result) if mirror else result
     text, facts = written(tool, result, args, lang)
     first = result["changes"][0]
-    said, other = ("raised", "lowered") if first["after"] > first["before"] else ("lowered", "raised")
+    said, other = ("opened", "closed") if first["after"] > first["before"] else ("closed", "opened")
     verb, flipped = PHRASES[said][lang], PHRASES[other][lang]
     assert verb in text and "wrong_direction" in _kinds(text.replace(verb, flipped, 1), facts)
 
