@@ -37,8 +37,8 @@ stops once it can no longer beat the best so far (both terms only grow along it)
 which need every cabinet's count. ``search="grid"`` tries every probe combination instead.
 
 Its cost is counted: ``sim_steps`` (plant steps simulated since ``reset``) and ``wall_s`` (seconds
-spent deciding). On the validation days 1.0-1.6 million plant steps a day (version 1: 1.2
-million), each about 0.6x as dear as version 1's (a decision's rollouts share its loads and valve
+spent deciding). On the validation days about 1.0-1.3 million plant steps a day (version 1: 1.2
+million), each about half as dear as version 1's (a decision's rollouts share its loads and valve
 splits ahead); docs/controllers.md has the figures.
 """
 
