@@ -3,43 +3,40 @@
 Every ``period_steps`` (8 = 2 min) it saves the FMU state, simulates candidate settings over the next
 ``horizon_steps`` (120 = 30 min) with the trace's actual future loads and wet bulb, restores the state
 after each, and applies the best. 30 min: the tower, the HTW loop and the blades take that long to
-answer (counting the band over 10 min only, the blades reached 47.5 C on a load step). It knows the
-future exactly (a perfect forecast) and runs the plant itself, so it is a ceiling for what a controller
-could reach with this model, not a controller one could deploy; the mesh refuses it (no future to give).
+answer, and with a 10-min band window the blades overshoot to 47 C on a load step. It knows the future
+exactly (a perfect forecast) and runs the plant itself, so it is a ceiling for what a controller could
+reach with this model, not a controller one could deploy; the mesh refuses it (no future to give it).
 
 Objective, lexicographic: first the fewest blade-group-steps outside the 20-40 C band (counted as the
-KPI counts them, no margin), then the least cooling energy (tower fans + all pumps, kWh). It minimises
+KPI counts them, no margin), then the least cooling energy (tower fans + all pumps, kWh): it minimises
 cooling energy subject to the band, and rides the band's top.
 
 A setting, held over the horizon and between decisions: a CDU supply setpoint and a dp setpoint per
 cabinet, and one tower leaving water (the step's wet bulb + an approach). Valves follow branch power
 every step (``rule.load_proportional_valves`` above the guardrails' floor, not searched). Every setpoint
 moves toward its setting at most the guardrails' rate a step (``GuardrailLimits``: supply 2 K, dp 5 psi,
-leaving water 2 K; leaving water >= wet bulb + 2.8 K and in 10..45 C), from what the plant applied, in
-the rollouts as on the plant, so the guardrails never clamp it.
+leaving water 2 K, leaving water >= wet bulb + 2.8 K and 10..45 C), in the rollouts as on the plant, so
+the guardrails never clamp it.
 
-The search: coordinate descent from the setting in force, ``passes`` (2) times; a pass that moves
-nothing ends it.
+The search, coordinate descent from the setting in force, ``passes`` times (a pass that moves nothing
+ends it):
 
-==============  ===============================================  =======================================
-coordinate      probes, every cabinet alike                      then
-==============  ===============================================  =======================================
-supply and dp   in force + ``supply_moves_k`` (-4..+4 K, inside  each cabinet: the probe with its fewest
-                18..40 C) at each of ``dp_psi`` (25..38 psi),    out-of-band blade-steps, then the least
-                dp rising, a level only while it could serve     energy; that combination, simulated
-approach        ``approaches_k`` (3, 5, 8, 10 K)                 the best
-==============  ===============================================  =======================================
+=============  ==========================================================  ================================
+coordinate     probes (every cabinet alike)                                then
+=============  ==========================================================  ================================
+supply         in force + ``supply_moves_k`` (-4, -2, -1, +1, +2, +4 K),   each cabinet takes the highest
+               inside 18..40 C                                             supply with its fewest out-of-band
+dp             ``dp_psi`` (25, 27.5, 30, 33, 38 psi)                       each cabinet the lowest dp, ditto
+approach       ``approaches_k`` (3, 5, 8, 10 K)                            the best of them
+=============  ==========================================================  ================================
 
 The cabinets couple only through the HTW loop, so one rollout per probe tells each cabinet's band; the
-energy is the plant's (not counted per cabinet). A dp level is probed while some cabinet has no in-band
-probe yet or the level's first probe (the highest supply) costs less than some cabinet's pick. A rollout
-stops once it can no longer beat the best so far (both terms only grow along it), except the probes,
-which need every cabinet's count. ``search="grid"`` tries every probe combination instead.
+per-cabinet pick is then simulated and kept only if it is the best so far. A rollout stops as soon as it
+can no longer beat the best (both terms only grow along it), except the probes, which need every cabinet's
+count. ``search="grid"`` tries every probe combination (every cabinet alike) instead.
 
 Its cost is counted: ``sim_steps`` (plant steps simulated since ``reset``) and ``wall_s`` (seconds
-spent deciding). On the validation days about 1.0-1.3 million plant steps a day (version 1: 1.2
-million), each about half as dear as version 1's (a decision's rollouts share its loads and valve
-splits ahead); docs/controllers.md has the figures.
+spent deciding), so a benchmark can state what the ceiling took (docs/controllers.md has the figures).
 """
 
 from __future__ import annotations
@@ -107,9 +104,7 @@ class LookaheadController:
         self.trace: Trace | None = None
         C, B, N = system.cabinets.count, system.cabinets.branches, system.towers.count
         self._action = PlantAction(np.zeros(C), np.zeros(C), np.full((C, B), 1.0 / B), np.zeros(N))
-        self._wet_bulbs: list[float] = []  # the decision's horizon ahead, shared by its rollouts
-        self._loads = np.zeros((0, system.n_blade_groups))
-        self._valves = np.zeros((0, C, B))
+        self._power = np.zeros(system.n_blade_groups)
         self._lower_k, self._upper_k = BLADE_LOWER_C + K, BLADE_UPPER_C + K
         self._supply_range_c = (limits.supply_temp_min_k - K, limits.supply_temp_max_k - K)
         self._rates = [RATE_MARGIN * r for r in (limits.supply_temp_rate_k, limits.dp_rate_pa, limits.lw_rate_k)]
@@ -137,26 +132,19 @@ class LookaheadController:
         if self.plant is None or self.trace is None:
             raise RuntimeError(NOT_ATTACHED)
         if self._command is None:  # ramp from what the plant applied; before its first step, from the setting
-            self._command = _applied_setpoints(obs) or self._start_command(obs.wet_bulb_k)
+            self._command = _applied_setpoints(obs) or self._targets(self.setting, obs.wet_bulb_k)
         if self._steps % self.period_steps == 0:
             t0 = time.perf_counter()
             self.setting = self._decide(self._trace_step(obs))
             self.decisions += 1
             self.wall_s += time.perf_counter() - t0
         self._steps += 1
-        self._ramp(self._command, self._targets(self.setting), obs.wet_bulb_k)
-        valves = load_proportional_valves(self.system, obs.blade_power_w, self.limits.valve_fraction_min)
-        return self._write(self._command, valves)
+        return self._apply(self.setting, obs.blade_power_w, obs.wet_bulb_k, self._command)
 
     # --- search ------------------------------------------------------------------------------------------
     def _decide(self, k: int) -> Setting:
-        plant, trace = self.plant, self.trace
-        horizon = min(self.horizon_steps, trace.n_steps - k)
-        # what every rollout of this decision shares: the wet bulbs, loads and valve splits ahead
-        self._wet_bulbs = [float(w) for w in trace.wet_bulb_k[k : k + horizon]]
-        self._loads = np.stack([trace.blade_power_w(t) for t in range(k, k + horizon)])
-        v_min = self.limits.valve_fraction_min
-        self._valves = np.stack([load_proportional_valves(self.system, p, v_min) for p in self._loads])
+        plant = self.plant
+        horizon = min(self.horizon_steps, self.trace.n_steps - k)
         n_done, start = plant.n_steps_done, plant.save_state()  # the state carries the inputs too
         search = _Search(self, start, k, horizon)
         try:
@@ -171,54 +159,43 @@ class LookaheadController:
     def _rollout(self, setting: Setting, k: int, horizon: int, bound: Cost) -> tuple[Cost, np.ndarray]:
         """Cost of holding `setting` for `horizon` steps from trace step `k` (the plant is at step k's start), and
         each cabinet's out-of-band count; stops early, with the cost so far, once that exceeds `bound`."""
-        plant = self.plant
-        targets = self._targets(setting)
-        command = [self._command[0].copy(), self._command[1].copy(), self._command[2]]
+        trace, plant, power = self.trace, self.plant, self._power
+        command = [np.array(self._command[0]), np.array(self._command[1]), self._command[2]]
         by_cabinet = np.zeros(self.system.cabinets.count, dtype=int)
-        lower_k, upper_k = self._lower_k, self._upper_k
         out_of_band, cooling_j = 0, 0.0
         bound_oob, bound_j = bound[0], bound[1] * 3.6e6
-        for j in range(horizon):
-            wet_bulb = self._wet_bulbs[j]
-            self._ramp(command, targets, wet_bulb)
-            out = plant.step(self._loads[j], wet_bulb, self._write(command, self._valves[j]))
+        for t in range(k, k + horizon):
+            wet_bulb = float(trace.wet_bulb_k[t])
+            trace.blade_power_w(t, out=power)
+            out = plant.step(power, wet_bulb, self._apply(setting, power, wet_bulb, command))
             self.sim_steps += 1
-            temps = out["blade_temp_k"]
-            if temps.min() <= lower_k or temps.max() >= upper_k:  # counted per cabinet only when a blade is out
-                temps = temps.reshape(by_cabinet.size, -1)
-                outside = np.count_nonzero((temps <= lower_k) | (temps >= upper_k), axis=1)
-                by_cabinet += outside
-                out_of_band += int(outside.sum())
+            temps = out["blade_temp_k"].reshape(by_cabinet.size, -1)
+            outside = np.count_nonzero((temps <= self._lower_k) | (temps >= self._upper_k), axis=1)
+            by_cabinet += outside
+            out_of_band += int(outside.sum())
             cooling_j += (float(out["ct_fan_power_w"]) + float(out["pump_power_w"])) * plant.step_s
             if out_of_band > bound_oob or (out_of_band == bound_oob and cooling_j > bound_j):
                 break
         return (out_of_band, cooling_j / 3.6e6), by_cabinet
 
-    def _targets(self, setting: Setting) -> tuple[np.ndarray, np.ndarray, float]:
-        """What `setting` asks for: supply K and dp Pa per cabinet, and the approach K."""
-        return np.array(setting[0]) + K, np.array(setting[1]) * PSI_TO_PA, setting[2]
+    def _targets(self, setting: Setting, wet_bulb_k: float) -> list:
+        """The setpoints `setting` asks for at this wet bulb, inside the guardrails' ranges."""
+        supply_c, dp_psi, approach_k = setting
+        lw_k = min(max(wet_bulb_k + approach_k, self.limits.lw_min_k), self.limits.lw_max_k)
+        return [np.array(supply_c) + K, np.array(dp_psi) * PSI_TO_PA, lw_k]
 
-    def _start_command(self, wet_bulb_k: float) -> list:
-        supply_k, dp_pa, approach_k = self._targets(self.setting)
-        return [supply_k, dp_pa, max(wet_bulb_k + approach_k, self.limits.lw_min_k)]
-
-    def _ramp(self, command: list, targets: tuple[np.ndarray, np.ndarray, float], wet_bulb_k: float) -> None:
-        """Move `command` (in place) one step toward `targets`, within the guardrails' rates and ranges."""
-        supply_k, dp_pa, approach_k = targets
+    def _apply(self, setting: Setting, blade_power_w: np.ndarray, wet_bulb_k: float, command: list) -> PlantAction:
+        """The action that moves `command` (updated in place) toward `setting` within the guardrails' limits."""
+        supply_k, dp_pa, lw_k = self._targets(setting, wet_bulb_k)
         r_supply, r_dp, r_lw = self._rates
-        for value, target, rate in ((command[0], supply_k, r_supply), (command[1], dp_pa, r_dp)):
-            if not np.array_equal(value, target):
-                np.clip(target, value - rate, value + rate, out=value)
-        lim = self.limits
-        lw_k = min(max(wet_bulb_k + approach_k, lim.lw_min_k), lim.lw_max_k)
-        lw_k = min(max(lw_k, command[2] - r_lw), command[2] + r_lw)
-        command[2] = max(lw_k, wet_bulb_k + lim.min_approach_k)  # the floor wins over the rate, as in the guardrails
-
-    def _write(self, command: list, valves: np.ndarray) -> PlantAction:
+        command[0] += np.clip(supply_k - command[0], -r_supply, r_supply)
+        command[1] += np.clip(dp_pa - command[1], -r_dp, r_dp)
+        lw_k = command[2] + min(max(lw_k - command[2], -r_lw), r_lw)
+        command[2] = max(lw_k, wet_bulb_k + self.limits.min_approach_k)  # the floor wins over the rate, as there
         a = self._action
         a.supply_temp_setpoint_k[:] = command[0]
         a.dp_setpoint_pa[:] = command[1]
-        a.valve_fractions[:] = valves
+        load_proportional_valves(self.system, blade_power_w, self.limits.valve_fraction_min, out=a.valve_fractions)
         a.lw_setpoint_k[:] = command[2]
         return a
 
