@@ -98,7 +98,6 @@ class TrainPlants:
             raise ValueError(f"`reward` must be one of {REWARDS}, got {reward!r}")
         self.reward = reward
         self.guardrails = guardrails  # the mesh's limits on every action (None: bare, the paper's setting)
-        self.clamped_steps = 0
         self.travel_scale = travel_scale
         self.seeds = seeds
         self.episode_steps = episode_steps
@@ -177,7 +176,6 @@ class TrainPlants:
             if self.guardrails is not None:  # what the mesh's Sensor would apply
                 guarded = apply_guardrails(action, before, obs.wet_bulb_k, self.guardrails, self.system)
                 if guarded.action is not None:
-                    self.clamped_steps += bool(guarded.clamps)
                     for dst, src in zip(action.astuple(), guarded.action.astuple()):
                         dst[...] = src
             out, term, _ = driver.step(action)

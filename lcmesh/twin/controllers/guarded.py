@@ -7,7 +7,7 @@ The mesh's Sensor passes every proposal through ``apply_guardrails`` against the
 non-finite) is replaced by the last applied action, as the Sensor holds it. What the guardrails did is
 counted: steps decided, steps with at least one clamp, values clamped, proposals rejected.
 
-``GUARDRAILS_OFF`` (``None``) runs the controller bare: the paper's setting, named so in every table.
+``guardrails=None`` runs the controller bare: the paper's setting, named so in every table.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from lcmesh.twin.system import SystemDescription
 
 MESH_GUARDRAILS = GuardrailLimits()
 """The mesh's default limits (``MeshConfig.guardrails``): what every run applies unless told otherwise."""
-GUARDRAILS_OFF = None
 
 
 def applied_action(out: dict) -> PlantAction:
