@@ -1,9 +1,10 @@
 # lc-mesh: one image for the router and every agent; docker-compose.yml picks the command per service.
 FROM python:3.11-slim
 
-# gcc compiles the twin's FMU from C at build time (and for any other system at run time)
+# gcc compiles the twin's FMU from C at build time (and for any other system at run time); g++ and cmake build
+# llama.cpp (the LLM runtime) from llama-cpp-python's sdist
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends gcc libc6-dev \
+    && apt-get install -y --no-install-recommends gcc g++ cmake libc6-dev \
     && rm -rf /var/lib/apt/lists/*
 
 ARG TORCH_VERSION=2.13.0
@@ -16,6 +17,8 @@ ENV PIP_NO_CACHE_DIR=1 \
 WORKDIR /app
 # torch first, CPU build: anything later that wants torch finds it satisfied (as the Makefile does)
 RUN pip install "torch==${TORCH_VERSION}" --index-url https://download.pytorch.org/whl/cpu
+RUN CMAKE_ARGS="-DLLAMA_CURL=OFF -DLLAMA_BUILD_TESTS=OFF -DLLAMA_BUILD_EXAMPLES=OFF -DLLAMA_BUILD_TOOLS=OFF -DLLAMA_BUILD_SERVER=OFF" \
+    pip install llama-cpp-python==0.3.36
 COPY pyproject.toml README.md ./
 COPY lcmesh ./lcmesh
 RUN pip install . \

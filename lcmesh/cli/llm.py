@@ -25,12 +25,31 @@ def _distill_llm(config) -> None:
     )
 
 
+def _distill_llm_control(config) -> None:
+    from lcmesh.distill.llm_control import distill_llm_control
+
+    with stage_bars() as on_progress:
+        manifest = distill_llm_control(config, progress=on_progress)
+    d = manifest["dev_scores"]
+    console.print(
+        f"adapter {manifest['adapter_id']}: final loss {manifest['final_loss']:.3f}; dev day {manifest['dev_day']}: "
+        f"supply MAE {d['supply_mae_k']:.2f} K, dp MAE {d['dp_mae_psi']:.2f} psi, approach MAE "
+        f"{d['approach_mae_k']:.2f} K, exact answers {100 * d['exact_answer_rate']:.0f} % "
+        f"({manifest['train_seconds'] / 60:.0f} min)"
+    )
+
+
 def _register() -> None:
+    from lcmesh.distill.llm_control import LlmControlDistillConfig
     from lcmesh.llm.distill_config import LlmDistillConfig
 
     distill_app.command(
         "llm", help="QLoRA-distill a teacher (ppo | g36 | tree) into SmolLM2-135M-Instruct; adapter + manifest."
     )(dataclass_options(LlmDistillConfig, _distill_llm))
+    distill_app.command(
+        "llm-control", help="Distill the deployed PPO policy into SmolLM2-135M as the LLM controller (compact "
+        "grammar-decoded answers, top layers LoRA on cached activations); adapter + manifest + loss plot."
+    )(dataclass_options(LlmControlDistillConfig, _distill_llm_control))
 
 
 _register()
@@ -45,7 +64,11 @@ def bench_llm(
                                          max=24.0)] = 1.0,
     period: Annotated[int, typer.Option(help="closed loop: the LLM decides every N steps", min=1)] = 8,
     days: Annotated[str, typer.Option(help="closed loop: comma-separated suite test days (default: all)")] = "",
-    adapter: Annotated[str, typer.Option(help="LoRA adapter folder, 'default' (packaged) or 'none'")] = "default",
+    adapter: Annotated[str, typer.Option(help="the explainer's LoRA adapter folder, 'default' (packaged) or "
+                                         "'none'")] = "default",
+    sections: Annotated[str, typer.Option(help="what to run: fidelity, control, explain, loop (busiest hour per "
+                                          "day), days (whole days, hours each)")] = "fidelity,control,explain,loop",
+    whole_day_period: Annotated[int, typer.Option(help="whole days: the LLM decides every N steps", min=1)] = 8,
 ) -> None:
     """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
@@ -57,8 +80,28 @@ def bench_llm(
             days_named([d.strip() for d in days.split(",") if d.strip()])
         except ValueError as exc:
             fail(f"`--days`: {exc}")
-    cfg = BenchLlmConfig.make(quick=quick, hours=hours, period_steps=period, adapter=adapter, days=days)
+    known = {"fidelity", "control", "explain", "loop", "days"}
+    unknown = sorted({x.strip() for x in sections.split(",") if x.strip()} - known)
+    if unknown:
+        fail(f"`--sections`: unknown {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+    cfg = BenchLlmConfig.make(quick=quick, hours=hours, period_steps=period, adapter=adapter, days=days,
+                              sections=sections, whole_day_period=whole_day_period)
     with progress_bar() as progress:
         task = progress.add_task("bench llm", total=None)
         result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg))
     write_bench(json_out, markdown, "llm", result, render=render_llm)
+
+
+@bench_app.command("runtime")
+def bench_runtime(
+    json_out: JsonOpt = None,
+    markdown: Annotated[Optional[Path], typer.Option(help="update the runtime section of this BENCHMARKS.md")] = None,
+    threads: Annotated[int, typer.Option(help="CPU threads every runtime gets", min=1)] = 2,
+) -> None:
+    """transformers fp32 / bf16, llama.cpp (shipped GGUF) and CTranslate2 int8 (if installed), side by side."""
+    from lcmesh.bench.runtime import render_runtime, run_bench_runtime
+
+    with progress_bar() as progress:
+        task = progress.add_task("bench runtime", total=None)
+        result = run_bench_runtime(threads, say=lambda msg: progress.update(task, description=msg))
+    write_bench(json_out, markdown, "runtime", result, render=render_runtime)

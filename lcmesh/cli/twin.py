@@ -161,6 +161,8 @@ def twin_run(
     else:
         console.print(f"guardrails (the mesh's): {g['clamped_steps']:,} of {g['steps']:,} decisions clamped "
                       f"({g['clamped_steps_pct']:.1f} %), {g['rejected']} rejected and held")  # fmt: skip
+    if result.decided_by is not None:
+        console.print(f"who decided: {result.decided_by['summary']}")
     if result.controller_cost is not None:
         cost = result.controller_cost
         console.print(f"{result.controller} simulated {cost['sim_steps']:,} plant steps in {cost['wall_s']:.1f} s")

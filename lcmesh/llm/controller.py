@@ -1,22 +1,28 @@
-"""The LLM controller: every cabinet's CDU head and every tower's approach decided by one batched generate call.
+"""The LLM controller: each cabinet's CDU setpoints and valve split and each tower's approach, answered by the LLM.
 
-The cabinets and the towers are the batch (LC-Opt's centralized action: one shared policy applied to
-each cabinet, one to each tower). Each answer is parsed strictly (``lcmesh.llm.io_format``); a
-cabinet or tower whose answer is unparsable or out of bounds, or all of them when the backend fails,
-take the fallback controller's action for that cabinet or tower, and the reason is counted in
-``stats`` (per kind in ``fallbacks_by_kind``). The fallback (the system's default ``"ppo"`` policy
-when it loads, else ``"g36"``) runs every step, so its state stays current, and serves only rejected
-answers. With ``period_steps = k`` the LLM decides every k-th step and its CDU setpoints and tower
-approaches are held in between (the leaving-water setpoint follows the wet bulb at the held approach;
-fallback cabinets and towers follow the fallback live). The decision's time
-budget bounds the whole backend call, its first forward pass included (``lcmesh.llm.budget``): a
-batch that cannot finish in time is not started, and every cabinet falls back as ``timeout``.
-The action goes to the plant (or, in the mesh, to the Sensor agent's guardrails) like any other.
+Each decision asks SmolLM2-135M with the distilled control adapter (``lcmesh/artifacts/llm-control``,
+``lcmesh distill llm-control``) one short prompt per cabinet and per tower, in the compact protocol
+of ``lcmesh.llm.control_format``, decoded under its grammar on the llama.cpp runtime
+(``lcmesh.llm.llama_backend``): the answer is valid by construction. Its targets go through the
+same hold band as every learned controller's (``lcmesh.distill.features.DEFAULT_HOLD``), then, in
+the twin as in the mesh, through the mesh's guardrails.
+
+Who decided is always counted and said (``stats_snapshot``, ``decided_by``): the LLM decides every
+``period_steps``-th step and its answers hold in between. A cabinet or tower it did not answer (the
+decision's time budget ran out before its turn, or the runtime failed) takes the fallback
+controller's action for that step, counted with the reason. The fallback (the shipped PPO policy,
+the adapter's teacher, else G36) runs every step so its state stays current.
+
+Outside the mesh there is no deadline (``decision_budget_s = None``): the LLM answers every decision
+it is asked for. In the mesh the Control agent calls :meth:`pace` with the wall seconds of a plant
+step; the period then adapts so that a decision takes at most ``PACE_SHARE`` of the time between
+decisions (the period in force is reported), and each decision's budget is that time.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import Counter
 
@@ -24,17 +30,20 @@ import numpy as np
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from lcmesh.llm.base import LlmBackend, LlmBackendSettings, make_backend
+from lcmesh.distill.features import DEFAULT_HOLD, HoldBand
 from lcmesh.llm.budget import Clock
-from lcmesh.llm.io_format import (
-    ANSWER_STOP, CabinetDecision, TowerDecision, cabinet_views, controller_messages, parse_cabinet_answer,
-    parse_tower_answer, tower_messages, tower_views,
+from lcmesh.llm.control_format import (
+    ASSISTANT, CABINET_HEAD, TOWER_FIELDS, TOWER_HEAD, cabinet_body, cabinet_decision, cabinet_fields, plant_line, tower_decision,
+    tower_prompt,
 )  # fmt: skip
+from lcmesh.llm.io_format import CabinetDecision, TowerDecision, cabinet_views, tower_views
 from lcmesh.twin.controllers.base import Controller, Observation
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
 
 log = logging.getLogger("lcmesh.llm.controller")
+PACE_SHARE = 0.8  # in the mesh a decision may take this share of the wall time between decisions
+MAX_PERIOD_STEPS = 240  # one hour of 15 s steps: slower than this, the LLM is not controlling the plant
 
 
 class LlmControllerSettings(BaseSettings):
@@ -42,10 +51,12 @@ class LlmControllerSettings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="LCMESH_LLM_", extra="ignore")
 
-    control_period_steps: int = Field(4, ge=1, description="the LLM decides every N plant steps, held in between")
-    fallback: str = Field("auto", description="controller for rejected answers: auto (ppo, else g36)")
-    max_new_tokens: int = Field(64, ge=8, le=512, description="answer budget per cabinet")
-    decision_budget_s: float = Field(10.0, gt=0, description="wall-time budget of one batched decision")
+    control_period_steps: int = Field(4, ge=1, description="the LLM decides every N plant steps (at least, in the "
+                                      "mesh: the period adapts to the LLM's speed), held in between")
+    fallback: str = Field("auto", description="controller for what the LLM did not answer: auto (ppo, else g36)")
+    control_adapter: str = Field("default", description="the control LoRA adapter: default (packaged), a folder, none")
+    control_threads: int = Field(1, ge=0, description="llama.cpp threads for control (0: its default); one leaves "
+                                 "the other core to the plant and the agents")
 
 
 def make_fallback(name: str, system: SystemDescription) -> Controller:
@@ -61,8 +72,20 @@ def make_fallback(name: str, system: SystemDescription) -> Controller:
         return make_controller("g36", system)
 
 
+def make_control_backend(adapter: str = "default", threads: int = 1):
+    """The llama.cpp runtime with the control adapter (converted to a GGUF LoRA on first use)."""
+    from lcmesh.llm.gguf_lora import lora_for
+    from lcmesh.llm.llama_backend import LlamaCppBackend
+
+    lora, adapter_id = lora_for(adapter, "control")
+    if lora is None and adapter != "none":
+        raise FileNotFoundError("no control adapter is packaged (lcmesh/artifacts/llm-control); run "
+                                "`lcmesh distill llm-control` or pass adapter='none' for the bare model")  # fmt: skip
+    return LlamaCppBackend(lora=lora, threads=threads, adapter_id=adapter_id)
+
+
 class LlmController:
-    """CDU setpoints and valve splits from an LLM, batched over cabinets, with a counted per-cabinet fallback."""
+    """Setpoints from an LLM, cabinet by cabinet and tower by tower, with a counted fallback and a paced period."""
 
     name = "llm"
 
@@ -70,129 +93,185 @@ class LlmController:
         self,
         system: SystemDescription,
         *,
-        backend: LlmBackend | None = None,
-        backend_settings: LlmBackendSettings | None = None,
+        backend=None,
         fallback: str | Controller | None = None,
         period_steps: int | None = None,
-        max_new_tokens: int | None = None,
         decision_budget_s: float | None = None,
+        hold: HoldBand | None = DEFAULT_HOLD,
         clock: Clock | None = None,
     ):
-        """``clock`` times the decisions; by default the backend's, so one injected clock drives both."""
+        """``backend``: anything with ``decide(prompts, fields, deadline)`` and a ``clock`` (default: llama.cpp with
+        the packaged control adapter). ``decision_budget_s``: None (no deadline) outside the mesh."""
         cfg = LlmControllerSettings()
         self.system = system
-        self.period_steps = period_steps if period_steps is not None else cfg.control_period_steps
-        if self.period_steps < 1:
-            raise ValueError(f"`period_steps` must be >= 1, got {self.period_steps}")
-        self.max_new_tokens = max_new_tokens if max_new_tokens is not None else cfg.max_new_tokens
-        self.decision_budget_s = decision_budget_s if decision_budget_s is not None else cfg.decision_budget_s
-        if self.decision_budget_s <= 0:
-            raise ValueError(f"`decision_budget_s` must be > 0, got {self.decision_budget_s}")
-        self.backend = backend if backend is not None else make_backend(backend_settings)
+        self.base_period = period_steps if period_steps is not None else cfg.control_period_steps
+        if self.base_period < 1:
+            raise ValueError(f"`period_steps` must be >= 1, got {self.base_period}")
+        if decision_budget_s is not None and decision_budget_s <= 0:
+            raise ValueError(f"`decision_budget_s` must be > 0 or None, got {decision_budget_s}")
+        self.period_steps = self.base_period
+        self.decision_budget_s = decision_budget_s
+        self.backend = backend if backend is not None else make_control_backend(cfg.control_adapter,
+                                                                                cfg.control_threads)  # fmt: skip
         self.clock = clock or getattr(self.backend, "clock", time.monotonic)
         fb = fallback if fallback is not None else cfg.fallback
         self.fallback = make_fallback(fb, system) if isinstance(fb, str) else fb
+        self.hold = hold
         self.version = f"{self.backend.model_id}|fallback={self.fallback.name}"
         C, B, N = system.cabinets.count, system.cabinets.branches, system.towers.count
+        self._fields = cabinet_fields(B)
         self._action = PlantAction(np.zeros(C), np.zeros(C), np.full((C, B), 1.0 / B), np.zeros(N))
-        self._held: list[CabinetDecision | None] = [None] * C
-        self._held_towers: list[TowerDecision | None] = [None] * N
         self._min_approach_k = system.towers.cell.approach_min_k
         self._fan_nominal_w = system.towers.cell.fan_power_nominal_w
+        self._paced_step_s: float | None = None
         self.reset()
 
     def reset(self) -> None:
         self.fallback.reset()
         self._step = 0
-        self._held = [None] * self.system.cabinets.count
-        self._held_towers = [None] * self.system.towers.count
+        self._held: list[CabinetDecision | None] = [None] * self.system.cabinets.count
+        self._held_towers: list[TowerDecision | None] = [None] * self.system.towers.count
         self.stats = {
             "decisions": 0, "cabinet_decisions": 0, "llm_cabinet_actions": 0, "tower_decisions": 0,
-            "llm_tower_actions": 0, "fallbacks": 0, "fallback_reasons": Counter(),
-            "fallbacks_by_kind": Counter(), "latency_s_last": 0.0, "latency_s_total": 0.0, "new_tokens_total": 0,
+            "llm_tower_actions": 0, "fallbacks": 0, "fallback_reasons": Counter(), "fallbacks_by_kind": Counter(),
+            "latency_s_last": 0.0, "latency_s_total": 0.0, "latency_s_max": 0.0, "forward_passes": 0,
+            "steps": 0, "steps_llm": 0,
         }  # fmt: skip
         self.last_answers: list[str] = []
-        self.last_failures: list[str | None] = []
 
+    # --- pacing (the mesh) ----------------------------------------------------------------------------------
+    def pace(self, step_wall_s: float) -> int:
+        """Adapt the period to a plant step of ``step_wall_s`` wall seconds: a decision (its latest latency, or the
+        mean) takes at most ``PACE_SHARE`` of the time between decisions; never below the configured period. Sets
+        the decision budget to that time; returns the period."""
+        if not step_wall_s > 0:
+            raise ValueError(f"`step_wall_s` must be > 0, got {step_wall_s}")
+        self._paced_step_s = step_wall_s
+        s = self.stats
+        latency = max(s["latency_s_last"], s["latency_s_total"] / max(s["decisions"], 1))
+        needed = math.ceil(latency / (PACE_SHARE * step_wall_s)) if latency > 0 else 1
+        self.period_steps = int(min(max(self.base_period, needed), MAX_PERIOD_STEPS))
+        self.decision_budget_s = self.period_steps * step_wall_s * PACE_SHARE
+        return self.period_steps
+
+    # --- control ----------------------------------------------------------------------------------------------
     def act(self, obs: Observation) -> PlantAction:
         base = self.fallback.act(obs)
         action = self._action
         for dst, src in zip(action.astuple(), base.astuple()):
             dst[...] = src
         if self._step % self.period_steps == 0:
-            self._held, self._held_towers = self.decide(obs)
+            self._decide(obs)
         self._step += 1
+        s = self.stats
+        s["steps"] += 1
+        all_llm = True
         for c, decision in enumerate(self._held):
-            if decision is not None:
-                action.supply_temp_setpoint_k[c] = decision.supply_temp_setpoint_k
-                action.dp_setpoint_pa[c] = decision.dp_setpoint_pa
-                action.valve_fractions[c] = decision.valve_fractions
+            if decision is None:
+                all_llm = False
+                continue
+            action.supply_temp_setpoint_k[c] = decision.supply_temp_setpoint_k
+            action.dp_setpoint_pa[c] = decision.dp_setpoint_pa
+            action.valve_fractions[c] = decision.valve_fractions
         for t, tower in enumerate(self._held_towers):
-            if tower is not None:
-                action.lw_setpoint_k[t] = obs.wet_bulb_k + max(tower.approach_k, self._min_approach_k)
+            if tower is None:
+                all_llm = False
+                continue
+            action.lw_setpoint_k[t] = obs.wet_bulb_k + max(tower.approach_k, self._min_approach_k)
+        s["steps_llm"] += int(all_llm)
+        if self.hold is not None:
+            self.hold.apply(action, obs.out)
         return action
 
-    def decide(self, obs: Observation) -> tuple[list[CabinetDecision | None], list[TowerDecision | None]]:
-        """One batched LLM call over all cabinets and towers; None where an answer was rejected (counted)."""
+    def _decide(self, obs: Observation) -> None:
+        """One decision: every cabinet's and tower's prompt answered in turn within the budget (if any)."""
         C, B, N = self.system.cabinets.count, self.system.cabinets.branches, self.system.towers.count
         branch_power_w = np.asarray(obs.blade_power_w).reshape(C, B, -1).sum(axis=2)
-        conversations = [controller_messages(v) for v in cabinet_views(obs.out, branch_power_w, obs.wet_bulb_k)]
-        conversations += [tower_messages(v) for v in tower_views(obs.out, obs.wet_bulb_k, self._fan_nominal_w)]
+        cabs = cabinet_views(obs.out, branch_power_w, obs.wet_bulb_k)
+        towers = tower_views(obs.out, obs.wet_bulb_k, self._fan_nominal_w)
+        shared = plant_line(cabs[0].wet_bulb_c, cabs[0].htw_supply_c)
+        prompts = [(CABINET_HEAD, shared + cabinet_body(v) + ASSISTANT) for v in cabs]
+        prompts += [(TOWER_HEAD, tower_prompt(v)[len(TOWER_HEAD):]) for v in towers]
+        fields = [self._fields] * C + [TOWER_FIELDS] * N
         t0 = self.clock()
+        deadline = None if self.decision_budget_s is None else t0 + self.decision_budget_s
         try:
-            generations = self.backend.chat(conversations, max_new_tokens=self.max_new_tokens, stop=[ANSWER_STOP],
-                                            time_budget_s=self.decision_budget_s)  # fmt: skip
-            answers = [(g.text, _failure(g), g.new_tokens) for g in generations]
-            if len(answers) != C + N:
-                raise RuntimeError(f"backend returned {len(answers)} answers for {C} cabinets and {N} towers")
-        except Exception as exc:  # a dead endpoint must not stop control: every cabinet and tower falls back
-            log.warning("LLM backend failed (%s: %s); all cabinets and towers fall back", type(exc).__name__, exc)
-            answers = [("", f"{type(exc).__name__}: {exc}", 0)] * (C + N)
+            choices = self.backend.decide(prompts, fields, deadline)
+            if len(choices) != C + N:
+                raise RuntimeError(f"runtime returned {len(choices)} answers for {C} cabinets and {N} towers")
+            failure = None
+        except Exception as exc:  # a failed runtime must not stop control: everything falls back, counted
+            log.warning("LLM runtime failed (%s: %s); all cabinets and towers fall back", type(exc).__name__, exc)
+            choices, failure = [None] * (C + N), "runtime_error"
         latency = self.clock() - t0
         s = self.stats
         s["decisions"] += 1
         s["latency_s_last"] = latency
         s["latency_s_total"] += latency
-        decisions: list = []
-        self.last_answers, self.last_failures = [a[0] for a in answers], []
-        for i, (text, error, n_tokens) in enumerate(answers):
+        s["latency_s_max"] = max(s["latency_s_max"], latency)
+        self.last_answers = []
+        for i, choice in enumerate(choices):
             kind = "cabinet" if i < C else "tower"
             s[f"{kind}_decisions"] += 1
-            s["new_tokens_total"] += n_tokens
-            if error is not None:
-                parsed = None
+            if choice is None:
+                reason = failure or "deadline"
+                s["fallbacks"] += 1
+                s["fallback_reasons"][reason] += 1
+                s["fallbacks_by_kind"][kind] += 1
+                self.last_answers.append("")
+                decision = None
             else:
-                parsed = parse_cabinet_answer(text, B) if kind == "cabinet" else parse_tower_answer(text)
-            if isinstance(parsed, (CabinetDecision, TowerDecision)):
                 s[f"llm_{kind}_actions"] += 1
-                decisions.append(parsed)
-                self.last_failures.append(None)
-                continue
-            reason = ("timeout" if error == "timeout" else "backend") if parsed is None else parsed.reason
-            s["fallbacks"] += 1
-            s["fallback_reasons"][reason] += 1
-            s["fallbacks_by_kind"][kind] += 1
-            self.last_failures.append(error if parsed is None else parsed.detail)
-            decisions.append(None)
-        return decisions[:C], decisions[C:]
+                s["forward_passes"] += choice.passes
+                self.last_answers.append(" ".join(choice.values))
+                decision = cabinet_decision(choice.values) if kind == "cabinet" else tower_decision(choice.values)
+            if kind == "cabinet":
+                self._held[i] = decision
+            else:
+                self._held_towers[i - C] = decision
 
+    # --- reporting ----------------------------------------------------------------------------------------------
     def stats_snapshot(self) -> dict:
-        """Counters for the mesh and the benchmark (JSON-ready)."""
+        """Counters for the mesh, the run JSON and the benchmarks (JSON-ready)."""
         s = self.stats
-        n = max(s["cabinet_decisions"] + s["tower_decisions"], 1)
+        n = s["cabinet_decisions"] + s["tower_decisions"]
+        llm = s["llm_cabinet_actions"] + s["llm_tower_actions"]
         return {
             **{k: v for k, v in s.items() if k not in ("fallback_reasons", "fallbacks_by_kind")},
             "fallback_reasons": dict(s["fallback_reasons"]),
             "fallbacks_by_kind": dict(s["fallbacks_by_kind"]),
-            "fallback_rate": s["fallbacks"] / n,
+            "llm_share": llm / n if n else None,
+            "fallback_rate": s["fallbacks"] / n if n else None,
             "latency_s_mean": s["latency_s_total"] / max(s["decisions"], 1),
             "period_steps": self.period_steps,
+            "base_period_steps": self.base_period,
+            "decision_budget_s": self.decision_budget_s,
             "fallback_controller": self.fallback.name,
+            "runtime": getattr(self.backend, "runtime", type(self.backend).__name__),
+            "model_id": self.backend.model_id,
         }
 
+    def decided_by(self) -> dict:
+        """Who decided, for every surface: the LLM's share of cabinet and tower answers and why the rest fell back."""
+        snap = self.stats_snapshot()
+        return {"controller": "llm", "llm_share": snap["llm_share"],
+                "llm_answers": snap["llm_cabinet_actions"] + snap["llm_tower_actions"],
+                "answers": snap["cabinet_decisions"] + snap["tower_decisions"],
+                "fallback": snap["fallback_controller"], "fallback_reasons": snap["fallback_reasons"],
+                "period_steps": snap["period_steps"], "latency_s_mean": snap["latency_s_mean"],
+                "summary": decided_by_line(snap)}  # fmt: skip
 
-def _failure(gen) -> str | None:
-    """Why a generation cannot be parsed at all; None when it has an answer (one can end just as time runs out)."""
-    if gen.failure == "timeout" and gen.text.rstrip().endswith(ANSWER_STOP):
-        return None
-    return gen.failure
+
+def decided_by_line(snap: dict) -> str:
+    """One sentence: who decided, how often the fallback served and why, at which period."""
+    n = snap["cabinet_decisions"] + snap["tower_decisions"]
+    if n == 0:
+        return "the LLM has not decided yet"
+    llm = snap["llm_cabinet_actions"] + snap["llm_tower_actions"]
+    text = (f"the LLM made {llm:,} of {n:,} cabinet and tower decisions ({100.0 * llm / n:.1f} %), "
+            f"every {snap['period_steps']} plant steps")
+    if snap["fallbacks"]:
+        reasons = ", ".join(f"{k} {v:,}" for k, v in sorted(snap["fallback_reasons"].items()))
+        text += f"; {snap['fallback_controller']} served the other {snap['fallbacks']:,} ({reasons})"
+    return text
+

@@ -32,6 +32,7 @@ class RunResult:
     controller: str
     controller_cost: dict | None = None  # a controller that simulates ahead: plant steps and seconds it took
     guardrails: dict = field(default_factory=lambda: {"guardrails": "off"})  # what the mesh's guardrails did
+    decided_by: dict | None = None  # a controller that can fall back (the LLM): who made its decisions, and why not
     series: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
     cabinet0: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
 
@@ -50,6 +51,7 @@ class RunResult:
             "controller": self.controller,
             "guardrails": self.guardrails,
             **({"controller_cost": self.controller_cost} if self.controller_cost is not None else {}),
+            **({"decided_by": self.decided_by} if self.decided_by is not None else {}),
         }
 
 
@@ -119,9 +121,16 @@ def run_twin(
         controller=getattr(controller, "name", type(controller).__name__),
         controller_cost=_controller_cost(controller),
         guardrails=guardrail_report(controller),
+        decided_by=_decided_by(controller),
         series=rec.series(),
         cabinet0=rec.cabinet0(),
     )
+
+
+def _decided_by(controller: Controller) -> dict | None:
+    """A controller that may hand decisions to a fallback reports who decided (``decided_by()``), else None."""
+    report = getattr(controller, "decided_by", None)
+    return report() if callable(report) else None
 
 
 def _controller_cost(controller: Controller) -> dict | None:
@@ -191,6 +200,7 @@ def plot_run(result: RunResult, path: str | Path) -> Path:
     ax.set_title(
         f"{result.system} | {result.trace} | {result.controller}: d_blade {result.kpi['d_blade_pct']:.1f} %, "
         f"CT {result.kpi['ct_power_kw_avg']:.1f} kW, hottest {result.kpi['blade_temp_max_c']:.1f} C, {guard_note}"
+        + (f"\n{result.decided_by['summary']}" if result.decided_by else "")
     )
     ax.legend(loc="upper right", fontsize=8)
     ax = axes[1]

@@ -27,6 +27,26 @@ def base_backend(local_model_dir):
     return HfBackend(local_model_dir, adapter=None, dtype="float32")
 
 
+@pytest.fixture(scope="session")
+def control_backend():
+    """llama.cpp on the shipped GGUF with the packaged control adapter (as the LLM controller loads it)."""
+    from lcmesh.llm.controller import make_control_backend
+
+    backend = make_control_backend("default", threads=1)
+    yield backend
+    backend.close()
+
+
+@pytest.fixture(scope="session")
+def llama_base():
+    """llama.cpp on the shipped GGUF, no adapter."""
+    from lcmesh.llm.llama_backend import LlamaCppBackend
+
+    backend = LlamaCppBackend(threads=1)
+    yield backend
+    backend.close()
+
+
 def frozen_clock() -> float:
     """A clock on which no time passes: a budget never runs out, so only tokens and parsing decide."""
     return 0.0

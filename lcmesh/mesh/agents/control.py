@@ -13,6 +13,9 @@ By default the decision runs in the bus callback (no thread hand-off: lowest lat
 slower than a control period (the LLM), ``inline = false`` moves it to a worker thread with a
 one-item mailbox (stale states are skipped, not queued) and, while a decision is in progress, the
 controller's last action is re-sent for each new step, so the Sensor never falls back for want of it.
+The LLM controller always runs so (``_worker_mode``), and is paced: before each step the agent tells it
+the wall seconds of a plant step, and its decision period adapts (lcmesh/llm/controller.py); what it
+decided and what fell back rides in the agent's stats (``decided_by``), which the UI shows.
 
 The controller follows the Configuration agent's ``controller``; one that can not load (not
 trained yet, unknown, a third-party ``module:Class`` not listed in ``controller_plugins``, or one
@@ -137,6 +140,11 @@ def _plain(value):
     return value if isinstance(value, (int, float, str, bool)) or value is None else str(value)
 
 
+def _worker_mode(controller: str) -> bool:
+    """Controllers slower than a control period decide in the worker thread whatever ``inline`` says."""
+    return controller == "llm"
+
+
 class ControlAgent(Agent):
     role = "control"
 
@@ -167,11 +175,8 @@ class ControlAgent(Agent):
         self.watch_config(self._on_config)
         self._use_controller(self.config.controller)
         self.subscribe(keys.applied(self.site, self.cfg.loop), AppliedAction, self._on_applied)
-        if self.cfg.inline:
-            self.subscribe(keys.plant_state(self.site), PlantState, self._decide, latest=True)
-        else:
-            self.subscribe(keys.plant_state(self.site), PlantState, self._on_state_async, latest=True)
-            self.spawn("decide", self._decide_loop)
+        self.subscribe(keys.plant_state(self.site), PlantState, self._on_state, latest=True)
+        self.spawn("decide", self._decide_loop)
         if self.cfg.explain:
             self._explain_thread = self.spawn("explain", self._explain_loop)
 
@@ -183,10 +188,11 @@ class ControlAgent(Agent):
 
     def details(self) -> dict:
         c = self.controller
+        report = getattr(c, "decided_by", None)
         return {"controller": getattr(c, "name", None), "controller_version": getattr(c, "version", None),
                 "wanted": self.config.controller, "note": self.controller_note, **self.tally,
-                "skipped_states": self._states.replaced,
-                "skipped_explanations": self._explain_jobs.replaced}  # fmt: skip
+                "skipped_states": self._states.replaced, "skipped_explanations": self._explain_jobs.replaced,
+                **({"decided_by": report()} if callable(report) else {})}  # fmt: skip
 
     def _on_config(self, old: MeshConfig, new: MeshConfig) -> None:
         if new.controller != old.controller and self.controller is not None:
@@ -207,6 +213,13 @@ class ControlAgent(Agent):
             self.emit_event("warning", self.controller_note)
         else:
             log.info("controller %s version %s", self.controller.name, self.controller.version)
+
+    def _on_state(self, state: PlantState) -> None:
+        """Decide in the bus callback (``inline``), or hand the state to the worker (a slow controller: the LLM)."""
+        if self.cfg.inline and not _worker_mode(self.config.controller):
+            self._decide(state)
+        else:
+            self._on_state_async(state)
 
     def _on_state_async(self, state: PlantState) -> None:
         """Worker mode: while a slow decision runs, the controller's last action is re-sent for each new step."""
@@ -247,6 +260,9 @@ class ControlAgent(Agent):
                 self._run_id = state.run_id
                 self.controller.reset()
             ctrl, previous = self.controller, self._previous
+            pace = getattr(ctrl, "pace", None)
+            if callable(pace):  # a slow policy (the LLM) decides every k steps, k adapted to the mesh's speed
+                pace(state.period_s)
             action = ctrl.act(obs)
             proposal = Proposal(
                 source=self.agent_id, loop=self.cfg.loop, step=state.step, state_id=state.id, controller=ctrl.name,

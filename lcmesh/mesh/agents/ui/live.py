@@ -100,6 +100,7 @@ class LiveStore:
         self.monitor: MonitorReport | None = None
         self.events: deque[AgentEvent] = deque(maxlen=200)
         self.agents: dict[str, dict] = {}
+        self.decided_by: dict | None = None  # the Control agent's word on who decided (a controller that falls back)
         self.counts: Counter = Counter()
         self.decisions_by_source: Counter = Counter()
         self.alerts_raised: Counter = Counter()
@@ -112,6 +113,8 @@ class LiveStore:
             with self._lock:
                 latest = self.applied[-1] if self.applied else None
             view = state_view(state, self.system, latest)
+            if view.get("controller") is not None and self.decided_by is not None:
+                view["controller"]["decided_by"] = self.decided_by
         except ValueError as exc:
             self.counts["bad_states"] += 1
             log.warning("dropped plant state %s: %s", state.id, exc)
@@ -204,6 +207,8 @@ class LiveStore:
             entry = self.agents.setdefault(stats.agent_id, {"agent_id": stats.agent_id, "role": stats.role,
                                                             "alive": False, "since": None})  # fmt: skip
             entry["stats"], entry["stats_at"] = stats, time.monotonic()
+            if stats.role == "control":
+                self.decided_by = stats.details.get("decided_by")
 
     def agents_view(self) -> list[dict]:
         """Every agent seen: alive (liveliness token), last stats, and the monitor's advice about it."""

@@ -158,6 +158,15 @@ def same_plan(a: list[ToolCall], b: list[ToolCall]) -> bool:
         return False
 
 
+def plan_schema() -> dict:
+    """The JSON schema a local plan is decoded under (llama.cpp's grammar): a list of at most ``MAX_CALLS``
+    ``{"tool": <a planner tool>, "args": {..}}`` objects. The arguments are any JSON object here, in the order the
+    model learned them, and validated by the tool's request model after decoding (``parse_plan``)."""
+    item = {"type": "object", "properties": {"tool": {"enum": sorted(PLANNER_TOOLS)}, "args": {"type": "object"}},
+            "required": ["tool", "args"], "additionalProperties": False}  # fmt: skip
+    return {"type": "array", "maxItems": MAX_CALLS, "items": item}
+
+
 def plan_messages(question: str) -> list[dict[str, str]]:
     """The chat messages the local planner reads (``chat_plan.md``)."""
     system, user = load_template("chat_plan")
@@ -340,13 +349,19 @@ class LlmPlanner(_Fallbacks):
         """The local backend with the planner adapter merged (loaded on first use)."""
         with self._lock:
             if self._backend is None:
+                from lcmesh.llm.gguf_lora import lora_for
                 from lcmesh.llm.hf.backend import HfBackend
+                from lcmesh.llm.llama_backend import LlamaCppBackend, llama_available
                 from lcmesh.llm.model_cache import resolve_model
 
                 if not (self.adapter / "adapter_config.json").is_file():
                     raise FileNotFoundError(f"no planner adapter in {self.adapter} (train: lcmesh distill planner)")
-                self._backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=self.adapter,
-                                          threads=self.threads)  # fmt: skip
+                if llama_available():  # the CPU runtime: the shipped GGUF with the adapter as a GGUF LoRA
+                    lora, adapter_id = lora_for(str(self.adapter), "planner")
+                    self._backend = LlamaCppBackend(lora=lora, threads=self.threads, adapter_id=adapter_id)
+                else:
+                    self._backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=self.adapter,
+                                              threads=self.threads)  # fmt: skip
             self._ready.set()
             return self._backend
 
@@ -374,8 +389,9 @@ class LlmPlanner(_Fallbacks):
         try:
             backend = self.backend
             with self._lock:
+                grammar = {"json_schema": plan_schema()} if getattr(backend, "runtime", "") == "llama.cpp" else {}
                 gen = backend.chat([plan_messages(question)], max_new_tokens=self.max_new_tokens, stop=list(PLAN_STOP),
-                                   time_budget_s=self.time_budget_s)[0]  # fmt: skip
+                                   time_budget_s=self.time_budget_s, **grammar)[0]  # fmt: skip
         except Exception as exc:  # a missing adapter or a failing backend: the rules answer
             return self._fall_back(question, "backend", f"{type(exc).__name__}: {exc}", None, t0)
         if gen.failure and not gen.text.rstrip().endswith(PLAN_STOP):

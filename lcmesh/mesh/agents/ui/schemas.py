@@ -147,7 +147,9 @@ class StateView(BaseModel):
     )
     cabinets: list[CabinetView]
     towers: list[TowerView]
-    controller: dict[str, Any] | None
+    controller: dict[str, Any] | None = Field(
+        description="who decided the last applied action; for a controller that falls back (the LLM) `decided_by` "
+        "gives the LLM's share of decisions, the fallback's reasons and the decision period in force")
 
 
 class HistoryAnswer(BaseModel):

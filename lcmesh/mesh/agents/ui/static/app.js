@@ -118,7 +118,11 @@ function onState(s) {
   $("pue").textContent = fmt(s.totals.cooling_pue, 3);
   $("approach").textContent = s.towers.map((tw) => `tower ${tw.tower}: ${fmt(tw.approach_k)} K`).join(" · ");
   renderWetBulb(s);
-  if (s.controller) $("acting").textContent = s.controller.source + (s.controller.fallback ? " (fallback)" : "");
+  if (s.controller) {
+    $("acting").textContent = s.controller.source + (s.controller.fallback ? " (fallback)" : "");
+    const who = s.controller.decided_by;  // a controller that falls back says who made its decisions and why not
+    $("decided-by").textContent = who ? `(${who.summary})` : "";
+  }
   renderSupply(s);
   renderValves(s);
   lastStep = s.step;
