@@ -68,7 +68,7 @@ class BenchLlmConfig:
 
 def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = None) -> dict:
     """All figures as one JSON-ready dict."""
-    from lcmesh.llm.base import LlmBackendSettings
+    from lcmesh.llm.base import LlmBackendSettings, make_backend
     from lcmesh.llm.controller import make_control_backend
     from lcmesh.llm.hf.backend import HfBackend, resolve_adapter
     from lcmesh.llm.hf.unpack import gguf_load_seconds
@@ -82,11 +82,12 @@ def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = 
     model_dir = resolve_model("smollm2-135m-instruct")
     gguf_s = gguf_load_seconds(shipped_gguf())
     settings = LlmBackendSettings(adapter=cfg.adapter)
-    backend = HfBackend(model_dir, adapter=resolve_adapter(settings.adapter), dtype=settings.dtype)
+    hf = HfBackend(model_dir, adapter=resolve_adapter(settings.adapter), dtype=settings.dtype)
     cached_s = HfBackend(model_dir, adapter=resolve_adapter(settings.adapter), dtype=settings.dtype).load_seconds
+    backend = make_backend(settings)  # the explainer as the mesh runs it (llama.cpp with the merged adapter)
     control = make_control_backend(cfg.control_adapter, threads=cfg.control_threads)
     result["load"] = {"gguf_s": gguf_s, "safetensors_cache_s": cached_s, "speedup": gguf_s / cached_s,
-                      "model_id": backend.model_id, "control_model_id": control.model_id,
+                      "model_id": backend.model_id, "hf_model_id": hf.model_id, "control_model_id": control.model_id,
                       "control_load_s": control.load_seconds}  # fmt: skip
     sections = {s.strip() for s in cfg.sections.split(",") if s.strip()}
     if "fidelity" in sections:
@@ -354,7 +355,7 @@ def render_llm(r: dict) -> str:
         f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs (shared; 1-min load average "
         f"{m['load_avg_1m_at_start']:.1f} at start, {m['load_avg_1m_at_end']:.1f} at end); commit {m['commit']}; "
         f"{m['date']}. Controller: {load.get('control_model_id', '?')} (llama.cpp, {c.get('control_threads', 1)} "
-        f"thread); explainer: {load['model_id']} (transformers).",
+        f"thread); explainer: {load['model_id']}.",
         "",
         "| figure | measured | target |",
         "|---|---|---|",

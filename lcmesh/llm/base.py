@@ -86,7 +86,10 @@ class LlmBackendSettings(BaseSettings):
     adapter: str = Field(
         "default", description="local only: LoRA adapter folder, 'default' (the packaged one if present) or 'none'"
     )
-    dtype: str = Field("bfloat16", description="local only: bfloat16 | float32")
+    runtime: str = Field("llama.cpp", description="local only: llama.cpp (the shipped GGUF; the CPU runtime) | "
+                         "transformers (the unpacked weights; what training uses)")
+    dtype: str = Field("float32", description="local transformers only: float32 | bfloat16 (bfloat16 is 4-5x slower "
+                       "on CPUs without native bfloat16, as AVX2-only ones)")
     threads: int = Field(0, ge=0, description="local only: torch threads (0 = torch's default)")
     base_url: str = Field("http://127.0.0.1:8000/v1", description="openai only: endpoint root ending in /v1")
     api_key: str = Field("", description="openai only: bearer token (from the environment, never stored)")
@@ -97,6 +100,11 @@ class LlmBackendSettings(BaseSettings):
     @classmethod
     def _known_backend(cls, value: str) -> str:
         return _one_of("backend", value, BACKENDS)
+
+    @field_validator("runtime")
+    @classmethod
+    def _known_runtime(cls, value: str) -> str:
+        return _one_of("runtime", value, ("llama.cpp", "transformers"))
 
     @field_validator("dtype")
     @classmethod
@@ -122,6 +130,15 @@ def make_backend(settings: LlmBackendSettings | None = None, **overrides) -> Llm
         from lcmesh.llm.openai_compat import OpenAiCompatBackend
 
         return OpenAiCompatBackend(settings)
+    if settings.runtime == "llama.cpp":
+        from lcmesh.llm.llama_backend import LlamaCppBackend, llama_available
+
+        if llama_available():
+            return LlamaCppBackend.from_settings(settings, adapter_kind="explain")
+        import logging
+
+        logging.getLogger("lcmesh.llm").warning("llama-cpp-python is not installed (make setup builds it); "
+                                                "the local LLM runs on transformers")  # fmt: skip
     from lcmesh.llm.hf.backend import HfBackend
 
     return HfBackend.from_settings(settings)

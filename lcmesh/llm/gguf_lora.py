@@ -1,4 +1,13 @@
-"""A peft LoRA folder as a GGUF LoRA adapter for llama.cpp, converted once into the model cache.
+"""A peft LoRA folder for llama.cpp: a GGUF LoRA adapter, or the model merged and requantized; cached once.
+
+Two forms, chosen by how the adapter was trained (its manifest's ``config.quant``):
+
+- trained on the unpacked base (``quant`` none: the shipped Q4_1 GGUF de-quantized, which is what
+  llama.cpp computes with): a GGUF LoRA over the shipped file (:func:`convert`), small and exact;
+- trained as QLoRA on an nf4 image of the base (the planner and explainer adapters): its corrections
+  belong to that image, and over Q4_1 they drift (the planner lost 13 points of plan accuracy on its
+  dev split). The adapter is merged into the nf4 image, as the transformers backend does, and the
+  result written as a whole GGUF with the changed projections in Q8_0 (:func:`merge_to_gguf`).
 
 peft keeps ``lora_A`` (r x in) and ``lora_B`` (out x r) per projection in transformers' layout. llama.cpp's
 GGUF stores the query and key projections with their rows permuted for its rotary kernel (the converter
@@ -58,21 +67,100 @@ def lora_for(spec: str | None, kind: str) -> tuple[Path | None, str]:
     return cached_gguf(folder), adapter_id(folder)
 
 
-def cached_gguf(folder: Path) -> Path:
+def trained_quant(folder: Path) -> str:
+    try:
+        config = json.loads((folder / "manifest.json").read_text()).get("config") or {}
+    except (OSError, json.JSONDecodeError):
+        return "none"
+    return str(config.get("quant", "none"))
+
+
+def runtime_files(spec: str | None, kind: str) -> tuple[Path | None, Path | None, str]:
+    """(model GGUF or None for the shipped one, LoRA GGUF or None, adapter id) for llama.cpp."""
+    folder = resolve_folder(spec, kind)
+    if folder is None:
+        return None, None, "base"
+    if trained_quant(folder) == "nf4":
+        return merged_gguf(folder), None, adapter_id(folder)
+    return None, cached_gguf(folder), adapter_id(folder)
+
+
+def _key(folder: Path) -> str:
     weights = folder / "adapter_model.safetensors"
-    key = hashlib.sha256(weights.read_bytes() + (folder / "adapter_config.json").read_bytes()).hexdigest()[:12]
-    target = models_dir() / f"lora-{folder.name}-{key}.gguf"
+    return hashlib.sha256(weights.read_bytes() + (folder / "adapter_config.json").read_bytes()).hexdigest()[:12]
+
+
+def _cached(target: Path, write) -> Path:
+    """``target``, written by ``write(tmp_path)`` first if absent (atomic: a crash leaves no half file)."""
     if not target.is_file():
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}-", dir=target.parent)
         os.close(fd)
         try:
-            convert(folder, Path(tmp))
+            write(Path(tmp))
             os.replace(tmp, target)
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
     return target
+
+
+def merged_gguf(folder: Path) -> Path:
+    return _cached(models_dir() / f"merged-{folder.name}-{_key(folder)}.gguf", lambda tmp: merge_to_gguf(folder, tmp))
+
+
+def merge_to_gguf(folder: Path, target: Path) -> Path:
+    """The shipped model with ``folder``'s adapter merged (into the nf4 image when it was trained on one), as one
+    GGUF: the shipped file's metadata, tokenizer and unchanged tensors, the merged projections in Q8_0."""
+    import gguf
+    import torch
+    from peft import PeftModel
+    from transformers import AutoModelForCausalLM
+
+    from lcmesh.llm.hf.backend import nf4_roundtrip
+    from lcmesh.llm.model_cache import resolve_model, shipped_gguf
+
+    model = AutoModelForCausalLM.from_pretrained(resolve_model("smollm2-135m-instruct"), dtype=torch.float32)
+    if trained_quant(folder) == "nf4":
+        nf4_roundtrip(model)
+    model = PeftModel.from_pretrained(model, str(folder)).merge_and_unload().eval()
+    hf = {}
+    for i, layer in enumerate(model.model.layers):
+        for proj, name in PROJECTIONS.items():
+            module = getattr(layer.self_attn if proj.endswith(("q_proj", "k_proj", "v_proj", "o_proj")) else layer.mlp,
+                             proj)  # fmt: skip
+            w = module.weight.detach().float().numpy()
+            if proj == "q_proj":
+                w = permute_rows(w, N_HEAD)
+            elif proj == "k_proj":
+                w = permute_rows(w, N_HEAD_KV)
+            hf[f"blk.{i}.{name}.weight"] = w
+    reader = gguf.GGUFReader(shipped_gguf())
+    writer = gguf.GGUFWriter(str(target), "llama")
+    for name, fld in reader.fields.items():
+        if name.startswith("GGUF.") or name == "general.architecture":
+            continue
+        vtype = fld.types[0]
+        sub = fld.types[-1] if vtype == gguf.GGUFValueType.ARRAY else None
+        value = fld.contents()
+        if name == "general.file_type":
+            value = int(gguf.LlamaFileType.MOSTLY_Q8_0)
+        writer.add_key_value(name, value, vtype, sub_type=sub)
+    for t in reader.tensors:
+        if t.name in hf:
+            writer.add_tensor(t.name, gguf.quants.quantize(hf[t.name], gguf.GGMLQuantizationType.Q8_0),
+                              raw_dtype=gguf.GGMLQuantizationType.Q8_0)  # fmt: skip
+        else:
+            writer.add_tensor(t.name, t.data, raw_dtype=t.tensor_type)  # quantized data comes as (rows, bytes)
+    writer.write_header_to_file()
+    writer.write_kv_data_to_file()
+    writer.write_tensors_to_file()
+    writer.close()
+    return target
+
+
+def cached_gguf(folder: Path) -> Path:
+    return _cached(models_dir() / f"lora-{folder.name}-{_key(folder)}.gguf", lambda tmp: convert(folder, tmp))
 
 
 def permute_rows(weight: np.ndarray, n_head: int) -> np.ndarray:

@@ -184,6 +184,23 @@ class Demo:
         remove_run_file(self.settings.data_dir, os.getpid())
 
 
+def prepare_llm(say) -> None:
+    """Write the LLM runtime's files into the model cache before the agents start (a first run: about half a minute),
+    so the planner answers from its first question instead of falling back while it converts its adapter."""
+    try:
+        from lcmesh.llm.gguf_lora import PACKAGED, resolve_folder, runtime_files
+        from lcmesh.llm.llama_backend import llama_available
+
+        if not llama_available():
+            say("note: llama-cpp-python is not installed (make setup builds it); the LLM runs on transformers")
+            return
+        for kind in PACKAGED:
+            if resolve_folder("default", kind) is not None:
+                runtime_files("default", kind)
+    except Exception as exc:  # the agents report what fails on their own; the demo still starts
+        say(f"note: preparing the LLM runtime files failed ({type(exc).__name__}: {exc})")
+
+
 def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes: dict | None = None,
              resume: bool = False, say: Callable[[str], None] = print) -> int:  # fmt: skip
     """Run until Ctrl-C/SIGTERM/SIGHUP (or `duration_s` > 0 seconds); 0 on a clean stop, 3 if busy.
@@ -210,6 +227,7 @@ def run_demo(settings: MeshSettings, *, duration_s: float = 0.0, config_changes:
             if writer.end_open_runs():
                 say("starting a new run (--resume continues the last one)")
             writer.close()
+        prepare_llm(say)
         demo.start()
         ui = unavailable_reason("ui")
         with_ui = ui is None and "ui" in settings.orchestration.roles

@@ -61,14 +61,15 @@ def test_without_a_deadline_the_llm_answers_every_cabinet_and_tower(plant, lcopt
     assert s["decisions"] == 2  # steps 0 and 2
     assert (s["llm_cabinet_actions"], s["llm_tower_actions"], s["fallbacks"]) == (10, 4, 0)
     assert s["llm_share"] == 1.0 and s["steps_llm"] == s["steps"] == 3
-    assert s["forward_passes"] == 2 * (5 * 8 + 2 * 2)  # 8 decided digits a cabinet, 2 a tower: the grammar fixes the rest
+    # at most 8 decided digits a cabinet and 2 a tower (the grammar fixes the rest, and all of 40.0 and 1.5)
+    assert 2 * (5 * 6 + 2 * 1) <= s["forward_passes"] <= 2 * (5 * 8 + 2 * 2)
     assert all(len(a.split()) == 5 for a in ctl.last_answers[:5])  # supply, dp, three valve weights
     report = ctl.decided_by()
     assert report["llm_share"] == 1.0 and "14 of 14" in report["summary"] and "every 2 plant steps" in report["summary"]
 
 
 def test_a_decision_budget_leaves_late_cabinets_to_the_fallback_and_says_so(plant, lcopt5, control_backend):
-    clock = PassClock(control_backend, per_pass_s=0.1)  # a cabinet is 8 passes: 0.8 s
+    clock = PassClock(control_backend, per_pass_s=0.1)  # a cabinet is 8 passes (6 at 40 degC): 0.8 s
     try:
         backend = control_backend.with_clock(clock)
         ctl = LlmController(lcopt5, backend=backend, fallback="g36", period_steps=1, decision_budget_s=2.0)

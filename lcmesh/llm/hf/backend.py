@@ -95,7 +95,7 @@ class HfBackend:
 
     name = "local"
 
-    def __init__(self, model_dir: Path, *, adapter: Path | None = None, dtype: str = "bfloat16", threads: int = 0,
+    def __init__(self, model_dir: Path, *, adapter: Path | None = None, dtype: str = "float32", threads: int = 0,
                  clock: Clock = time.monotonic, calibrate: bool = True):  # fmt: skip
         """Load the model; ``clock`` keeps the time budgets, ``calibrate`` times a pass for the first estimate."""
         if threads > 0:

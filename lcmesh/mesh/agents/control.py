@@ -207,6 +207,8 @@ class ControlAgent(Agent):
         self.controller, self.controller_note = build_controller(
             name, self.system, self.settings.allowed_controller_plugins
         )
+        if hasattr(self.controller, "base_period"):  # the LLM: its configured period (paced up from there)
+            self.controller.base_period = self.controller.period_steps = self.config.llm.control_period_steps
         self.controller.reset()
         if self.controller_note:
             log.warning("%s", self.controller_note)

@@ -255,3 +255,23 @@ def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_a
     assert "## EXECUTIVE SUMMARY" in explained[0]["text"]  # the LLM's text passed the judge, or the rendering did
     stats = control._llm_explainer.stats
     assert stats["explanations"] == stats["llm"] + stats["renderer"] >= 1
+
+
+def test_the_llm_controller_runs_paced_in_the_mesh_and_says_who_decided(start_agent, mesh_settings):
+    """The real LLM controller in the Control agent: worker mode, a period paced to the mesh's speed, and its
+    share of decisions in the agent's stats (what /api/state and the page show)."""
+    settings = mesh_settings.model_copy(update={"controller": "llm"})
+    control = start_agent(ControlAgent, settings)
+    sensor = start_agent(SensorAgent, settings)
+    report = wait_until(lambda: (control.details().get("decided_by") or {}).get("answers", 0) >= 14
+                        and control.details()["decided_by"], 120)  # fmt: skip
+    assert report, control.details()
+    assert control.controller.name == "llm" and not control.controller_note
+    snap = control.controller.stats_snapshot()
+    assert report["period_steps"] >= 4  # MeshConfig.llm.control_period_steps, paced up from there
+    assert snap["decision_budget_s"] == pytest.approx(report["period_steps"] * sensor.period_s * 0.8, rel=0.01) or \
+        snap["period_steps"] != report["period_steps"]  # the budget is the paced period's (unless it just changed)
+    assert report["llm_share"] is not None and "cabinet and tower decisions" in report["summary"]
+    history = HistoryReader(settings.history_file)
+    rows = wait_until(lambda: [d for d in history.decisions(limit=200) if d["source_controller"] == "llm"], 30)
+    assert rows, "no decision of the LLM controller was applied"

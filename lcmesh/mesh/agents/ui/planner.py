@@ -349,7 +349,7 @@ class LlmPlanner(_Fallbacks):
         """The local backend with the planner adapter merged (loaded on first use)."""
         with self._lock:
             if self._backend is None:
-                from lcmesh.llm.gguf_lora import lora_for
+                from lcmesh.llm.gguf_lora import runtime_files
                 from lcmesh.llm.hf.backend import HfBackend
                 from lcmesh.llm.llama_backend import LlamaCppBackend, llama_available
                 from lcmesh.llm.model_cache import resolve_model
@@ -357,8 +357,8 @@ class LlmPlanner(_Fallbacks):
                 if not (self.adapter / "adapter_config.json").is_file():
                     raise FileNotFoundError(f"no planner adapter in {self.adapter} (train: lcmesh distill planner)")
                 if llama_available():  # the CPU runtime: the shipped GGUF with the adapter as a GGUF LoRA
-                    lora, adapter_id = lora_for(str(self.adapter), "planner")
-                    self._backend = LlamaCppBackend(lora=lora, threads=self.threads, adapter_id=adapter_id)
+                    gguf, lora, adapter_id = runtime_files(str(self.adapter), "planner")
+                    self._backend = LlamaCppBackend(gguf, lora=lora, threads=self.threads, adapter_id=adapter_id)
                 else:
                     self._backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=self.adapter,
                                               threads=self.threads)  # fmt: skip
