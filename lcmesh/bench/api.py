@@ -237,3 +237,78 @@ def render_api(r: dict) -> str:
 
 
 __all__ = ["run_bench_api", "render_api", "state_load", "chat_latency"]
+
+
+def run_live_planner(n_questions: int = 40, *, controller: str | None = None, say: Callable[[str], None] = print) -> dict:
+    """The demo mesh as `lcmesh demo` runs it (default speed and controller, the UI's default planner: the local
+    LLM), real processes on loopback; ``n_questions`` of the chat benchmark's test split asked through
+    ``POST /api/chat`` one after another. Who planned each answer (the ``planned_by`` of the reply) and its
+    latency; the mesh keeps running its agents meanwhile (that is the point)."""
+    from lcmesh.bench.chat import load_questions
+
+    root = Path(tempfile.mkdtemp(prefix="lcmesh-live-planner-"))
+    router, ui_port = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{router}"
+    defaults = MeshSettings()
+    settings = MeshSettings(site="liveplan", router_endpoints=[endpoint], listen_endpoints=[endpoint],
+                            data_dir=root, ui_port=ui_port, connect_timeout_s=60.0,
+                            **({"controller": controller} if controller else {}))  # fmt: skip
+    token = secrets.token_urlsafe(24)
+    demo = Demo(settings, say=lambda _line: None)
+    demo.env.update({"LCMESH_API_TOKEN": token, "LCMESH_UI_CHAT_RATE_PER_MIN": "100000",
+                     "LCMESH_UI_CHAT_BURST": "100000"})  # fmt: skip
+    url = f"http://127.0.0.1:{ui_port}"
+    questions = [q for q in load_questions("test") if not q.refuse][:n_questions]
+    result: dict = {"machine": machine_info(), "speed_factor": settings.speed_factor, "controller": settings.controller,
+                    "defaults": {"speed_factor": defaults.speed_factor, "controller": defaults.controller},
+                    "load_avg_1min_start": os.getloadavg()[0]}  # fmt: skip
+    rows = []
+    try:
+        from lcmesh.mesh.demo import prepare_llm
+
+        prepare_llm(say)
+        say("starting the demo mesh ...")
+        demo.start()
+        _wait_ready(url, 180.0)
+        say("waiting for the planner model to load ...")
+        _wait_ready(url, 300.0, lambda h: h["ready"])
+        time.sleep(10.0)  # the planner loads in the background on the UI's start: give it its load time
+        with httpx.Client(base_url=url, timeout=120.0) as http:
+            for i, q in enumerate(questions):
+                say(f"question {i + 1}/{len(questions)}")
+                t0 = time.perf_counter()
+                r = http.post("/api/chat", json={"message": q.question})
+                seconds = time.perf_counter() - t0
+                body = r.json() if r.headers.get("content-type", "").startswith("application/json") else {}
+                rows.append({"id": q.id, "lang": q.lang, "status": r.status_code, "seconds": seconds,
+                             "planned_by": str(body.get("planned_by", "?")), "note": body.get("plan_note")})  # fmt: skip
+    finally:
+        result["load_avg_1min_end"] = os.getloadavg()[0]
+        demo.stop()
+        shutil.rmtree(root, ignore_errors=True)
+    secs = [r["seconds"] for r in rows]
+    by = {}
+    for r in rows:
+        key = r["planned_by"].split(":")[0]
+        by[key] = by.get(key, 0) + 1
+    result.update({"questions": len(rows), "planned_by": by, "llm_share": by.get("llm", 0) / max(len(rows), 1),
+                   "p50_s": float(np.percentile(secs, 50)) if secs else None,
+                   "p99_s": float(np.percentile(secs, 99)) if secs else None, "rows": rows})  # fmt: skip
+    return result
+
+
+def render_live_planner(r: dict) -> str:
+    m = r["machine"]
+    return "\n".join([
+        "## Chat planner in the running demo (`lcmesh bench chat --live 40 --json runs/bench/chat-live.json "
+        "--markdown BENCHMARKS.md`)", "",
+        f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}. The demo mesh as "
+        f"`lcmesh demo` starts it (lcopt-5 at {r['speed_factor']:g}x, controller {r['controller']}; the defaults are "
+        f"{r['defaults']['speed_factor']:g}x and {r['defaults']['controller']}), real processes on loopback; "
+        f"{r['questions']} questions of the chat benchmark's test split (refusals left out) through `POST /api/chat`, "
+        f"one after another while the agents run. Load average {r['load_avg_1min_start']:.1f} at the start, "
+        f"{r['load_avg_1min_end']:.1f} at the end.", "",
+        "| figure | measured | target |", "|---|---|---|",
+        f"| answers planned by the LLM | {100 * r['llm_share']:.0f} % ({r['planned_by']}) | >= 95 % |",
+        f"| answer latency p50 / p99 | {r['p50_s']:.2f} / {r['p99_s']:.2f} s | p99 <= 3 s |",
+    ])  # fmt: skip

@@ -19,8 +19,18 @@ def bench_chat(
     planners: Annotated[str, typer.Option(help="comma list of llm, rules, openai, oracle (the expected calls)")] = \
         "llm,rules,oracle",
     site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
+    live: Annotated[int, typer.Option(help="instead: start the demo mesh and ask this many test questions through "
+                                      "its REST API; who planned each answer and its latency", min=0)] = 0,
+    controller: Annotated[Optional[str], typer.Option(help="--live: the demo's controller (default: the demo's)")] = None,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
+    if live:
+        from lcmesh.bench.api import render_live_planner, run_live_planner
+
+        with console.status("live demo") as status:
+            result = run_live_planner(live, controller=controller, say=lambda m: status.update(m))
+        write_bench(json_out, markdown, "chat-live", result, render=render_live_planner)
+        return
     from lcmesh.bench import chat
     from lcmesh.bench.chat_site import ensure_site
     from lcmesh.bench.machine import machine_info

@@ -119,7 +119,13 @@ def build_samples(exp, cab: np.ndarray, approach: np.ndarray, system, idx_c: np.
     """(head, rest, fields, values) per sampled cabinet (t, c) and tower (t, n) decision."""
     from lcmesh.distill.llm import step_view, tower_view
     from lcmesh.llm.control_format import (
-        CABINET_HEAD, TOWER_FIELDS, TOWER_HEAD, cabinet_answer, cabinet_fields, cabinet_prompt, tower_answer,
+        CABINET_HEAD,
+        TOWER_FIELDS,
+        TOWER_HEAD,
+        cabinet_answer,
+        cabinet_fields,
+        cabinet_prompt,
+        tower_answer,
         tower_prompt,
     )  # fmt: skip
 
@@ -339,7 +345,7 @@ def score_dev(decoder, samples, say) -> dict:
         else:
             appr.append(abs(float(got[0]) - float(values[0])))
         say("dev-day scores", k + 1, len(samples))
-    mean = lambda x: float(np.mean(x)) if x else None  # noqa: E731
+    mean = lambda x: float(np.mean(x)) if x else None
     return {"supply_mae_k": mean(sup), "dp_mae_psi": mean(dp), "valve_weight_mae": mean(valves),
             "approach_mae_k": mean(appr), "exact_answer_rate": mean(exact), "n": len(samples)}  # fmt: skip
 

@@ -33,7 +33,15 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from lcmesh.distill.features import DEFAULT_HOLD, HoldBand
 from lcmesh.llm.budget import Clock
 from lcmesh.llm.control_format import (
-    ASSISTANT, CABINET_HEAD, TOWER_FIELDS, TOWER_HEAD, cabinet_body, cabinet_decision, cabinet_fields, plant_line, tower_decision,
+    ASSISTANT,
+    CABINET_HEAD,
+    TOWER_FIELDS,
+    TOWER_HEAD,
+    cabinet_body,
+    cabinet_decision,
+    cabinet_fields,
+    plant_line,
+    tower_decision,
     tower_prompt,
 )  # fmt: skip
 from lcmesh.llm.io_format import CabinetDecision, TowerDecision, cabinet_views, tower_views

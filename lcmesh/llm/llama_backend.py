@@ -115,7 +115,7 @@ class LlamaCppBackend:
         self._lock = threading.Lock()
 
     @classmethod
-    def from_settings(cls, settings: LlmBackendSettings, *, adapter_kind: str = "explain") -> "LlamaCppBackend":
+    def from_settings(cls, settings: LlmBackendSettings, *, adapter_kind: str = "explain") -> LlamaCppBackend:
         from lcmesh.llm.gguf_lora import runtime_files
 
         gguf, lora, adapter_id = runtime_files(settings.adapter, adapter_kind)
@@ -125,7 +125,7 @@ class LlamaCppBackend:
             gguf = Path(settings.model)
         return cls(gguf, lora=lora, threads=settings.threads, adapter_id=adapter_id)
 
-    def with_clock(self, clock: Clock) -> "LlamaCppBackend":
+    def with_clock(self, clock: Clock) -> LlamaCppBackend:
         """This backend (the same model and context, the same lock) on another clock, with a fresh pass estimate."""
         import copy
 

@@ -148,6 +148,8 @@ class Explanation(Message):
     level: str = "facts"
     text: str
     facts: list[FactModel] = []
+    written_by: Literal["renderer", "llm"] = Field("renderer", description="who wrote the text: the toolbox's "
+                                                   "renderer, or the LLM (its text passed the judge)")
 
 
 # --- maintenance, monitor, events ---------------------------------------------------------------

@@ -9,8 +9,17 @@ import pytest
 
 from lcmesh.llm.choice import ChoiceDecoder, HfScorer
 from lcmesh.llm.control_format import (
-    CABINET_HEAD, TOWER_FIELDS, TOWER_HEAD, allowed_next, answer_text, cabinet_answer, cabinet_decision, cabinet_fields,
-    cabinet_prompt, parse_values, tower_prompt,
+    CABINET_HEAD,
+    TOWER_FIELDS,
+    TOWER_HEAD,
+    allowed_next,
+    answer_text,
+    cabinet_answer,
+    cabinet_decision,
+    cabinet_fields,
+    cabinet_prompt,
+    parse_values,
+    tower_prompt,
 )  # fmt: skip
 from lcmesh.llm.io_format import CabinetView, TowerView
 from lcmesh.llm.llama_backend import chatml

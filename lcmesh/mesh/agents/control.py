@@ -291,7 +291,7 @@ class ControlAgent(Agent):
                                         record_id=decision_id)  # fmt: skip
         self.tally["llm_texts" if r.source == "llm" else "llm_fallbacks"] += 1
         return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
-                           level="detailed", text=r.text,
+                           level="detailed", text=r.text, written_by="llm" if r.source == "llm" else "renderer",
                            facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:

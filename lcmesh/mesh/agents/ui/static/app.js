@@ -186,6 +186,9 @@ function renderAgents(rows) {
 }
 
 const explanations = new Map();
+const writtenBy = new Map();  // decision id -> "llm" | "renderer": who wrote the explanation's text
+const explainLabel = (id) => (writtenBy.get(id) === "llm" ? "explanation (written by the LLM, checked)"
+  : writtenBy.has(id) ? "explanation (rendered from the facts)" : "explanation");
 
 // A decision that moved nothing the page shows (`changes` is [], not null: null means no decision before it known)
 const unchanged = (d) => Array.isArray(d.changes) && d.changes.length === 0;
@@ -217,7 +220,7 @@ function decisionItem(d, count = 1, firstStep = d.step) {
   const text = d.explanation || explanations.get(d.decision_id);
   if (text) {
     const det = el("details");
-    det.append(el("summary", {}, "explanation"), el("pre", {}, text));
+    det.append(el("summary", {}, explainLabel(d.decision_id)), el("pre", {}, text));
     li.append(det);
   }
   return li;
@@ -238,11 +241,16 @@ function addDecision(d) {
 
 function addExplanation(x) {
   explanations.set(x.decision_id, x.text);
-  if (explanations.size > 200) explanations.delete(explanations.keys().next().value);
+  if (x.written_by) writtenBy.set(x.decision_id, x.written_by);
+  if (explanations.size > 200) {
+    const oldest = explanations.keys().next().value;
+    explanations.delete(oldest);
+    writtenBy.delete(oldest);
+  }
   const li = document.querySelector(`#decisions li[data-decision="${CSS.escape(x.decision_id)}"]`);
   if (li && !li.querySelector("details")) {
     const det = el("details");
-    det.append(el("summary", {}, "explanation"), el("pre", {}, x.text));
+    det.append(el("summary", {}, explainLabel(x.decision_id)), el("pre", {}, x.text));
     li.append(det);
   }
 }
