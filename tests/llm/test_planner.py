@@ -250,3 +250,36 @@ def test_while_the_model_loads_the_rules_plan_and_say_so(tmp_path):
     planner.warm().join(timeout=60)
     after = planner.plan("which cabinet runs hottest?")
     assert after.by == "rules" and "no planner adapter" in after.note and planner.fallbacks == 2
+
+
+@pytest.fixture(scope="module")
+def llama_planner_backend():
+    """The planner as the mesh runs it: llama.cpp, the nf4-trained adapter merged into the model (Q8_0)."""
+    from lcmesh.llm.gguf_lora import runtime_files
+    from lcmesh.llm.llama_backend import LlamaCppBackend
+
+    gguf, lora, adapter_id = runtime_files("default", "planner")
+    assert gguf is not None and lora is None  # trained as QLoRA: merged, not a LoRA over Q4_1
+    backend = LlamaCppBackend(gguf, adapter_id=adapter_id)
+    yield backend
+    backend.close()
+
+
+def test_on_llama_cpp_the_shipped_adapter_plans_as_on_transformers(llama_planner_backend, planner_backend):
+    llama = LlmPlanner(backend=llama_planner_backend.with_clock(frozen_clock))
+    hf = LlmPlanner(backend=planner_backend.with_clock(frozen_clock))
+    samples = [s for s in generate(40, seed=4242) if s.category in ("state", "rank", "alerts", "refusal", "change")]
+    same = 0
+    for s in samples[:6]:
+        a, b = llama.plan(s.question), hf.plan(s.question)
+        assert a.by == "llm", (s.question, a.note)  # decoded under the plan's JSON schema, every call validated
+        same += same_plan(a.calls, b.calls)
+    assert same >= 5 and llama.fallbacks == 0
+
+
+def test_on_llama_cpp_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeout(llama_planner_backend):
+    ticks = iter(float(t) for t in range(0, 1000))  # every reading of the clock: one second later
+    planner = LlmPlanner(backend=llama_planner_backend.with_clock(lambda: next(ticks)), time_budget_s=0.5)
+    plan = planner.plan("any alerts?")
+    assert plan.by == "rules" and plan.note.startswith("llm output invalid: timeout")
+    assert planner.fallback_reasons == {"timeout": 1}

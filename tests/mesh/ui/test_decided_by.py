@@ -1,0 +1,31 @@
+"""The page's and /api/state's word on who decided: the Control agent's `decided_by` rides on the state view."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from lcmesh.mesh.agents.ui.live import EventHub, LiveStore
+from lcmesh.mesh.messages import ActionModel, AgentStats, AppliedAction, observation_to_plant_state
+from lcmesh.twin.controllers import Observation, make_controller
+
+
+def test_the_state_view_carries_the_control_agents_decided_by(plant, lcopt5):
+    store = LiveStore(lcopt5, EventHub())
+    out = plant.reset()
+    obs = Observation(out, 291.15, np.full(lcopt5.n_blade_groups, 60e3), 0.0)
+    action = ActionModel.from_action(make_controller("g36", lcopt5).act(obs))
+    store.on_applied(AppliedAction(source="sensor", run_id="r", step=0, time_s=0.0, source_controller="llm",
+                                   source_version="v", action=action))  # fmt: skip
+    report = {"controller": "llm", "llm_share": 0.98, "summary": "the LLM made 98 of 100 cabinet and tower "
+              "decisions (98.0 %), every 11 plant steps; ppo served the other 2 (deadline 2)"}  # fmt: skip
+    store.on_stats(AgentStats(source="control-1", role="control", agent_id="control-1", pid=1, host="h", uptime_s=1.0, cpu_pct=0.0,
+                              rss_bytes=1, threads=1, details={"decided_by": report}))  # fmt: skip
+    store.on_state(observation_to_plant_state(obs, lcopt5, source="sensor", run_id="r", step=1, period_s=0.25))
+    view = json.loads(store.view_json)
+    assert view["controller"]["source"] == "llm" and view["controller"]["decided_by"] == report
+    store.on_stats(AgentStats(source="control-1", role="control", agent_id="control-1", pid=1, host="h", uptime_s=2.0, cpu_pct=0.0,
+                              rss_bytes=1, threads=1, details={}))  # a controller that does not fall back: G36  # fmt: skip
+    store.on_state(observation_to_plant_state(obs, lcopt5, source="sensor", run_id="r", step=2, period_s=0.25))
+    assert "decided_by" not in json.loads(store.view_json)["controller"]
