@@ -58,6 +58,11 @@ class LlmControlDistillConfig:
     epochs: float = 5.0
     lr: float = 1e-3
     batch_size: int = 32
+    tower_viper: bool = False
+    """Draw tower samples by VIPER weight (the teacher's confident choices: its hot-weather minimum approach)
+    instead of uniformly."""
+    init_adapter: str = ""
+    """Continue training this adapter folder (its LoRA layers and rank win) instead of fresh LoRA weights."""
     seed: int = 0
     threads: int = 0
     out: str = ""
@@ -210,7 +215,12 @@ def distill_llm_control(cfg: LlmControlDistillConfig, progress: Progress | None 
     T, C = exp.cabinet_rows.shape[:2]
     N = exp.tower_rows.shape[1]
     idx_c = np.column_stack([rng.integers(0, T, cfg.samples), rng.integers(0, C, cfg.samples)])
-    idx_t = np.column_stack([rng.integers(0, T, cfg.tower_samples), rng.integers(0, N, cfg.tower_samples)])
+    if cfg.tower_viper:
+        from lcmesh.distill.experience import resample
+
+        idx_t = resample(exp, cfg.tower_samples, rng, "tower")
+    else:
+        idx_t = np.column_stack([rng.integers(0, T, cfg.tower_samples), rng.integers(0, N, cfg.tower_samples)])
     train = build_samples(exp, cab, appr, system, idx_c, idx_t)
     Td = dev.cabinet_rows.shape[0]
     n_dev_t = max(cfg.dev_samples // 4, 1)
@@ -231,10 +241,18 @@ def distill_llm_control(cfg: LlmControlDistillConfig, progress: Progress | None 
     split = TopLayers(model, cfg.top_layers)
     cache = _cache_bottom(split, encoded, say)
 
-    lora = LoraConfig(r=cfg.r, lora_alpha=cfg.alpha, lora_dropout=0.0, bias="none",
-                      target_modules=["q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj"],
-                      layers_to_transform=list(range(split.L0, split.L0 + cfg.top_layers)))  # fmt: skip
-    peft_model = get_peft_model(model, lora)
+    if cfg.init_adapter:
+        from peft import PeftModel
+
+        peft_model = PeftModel.from_pretrained(model, cfg.init_adapter, is_trainable=True)
+        parent = json.loads((Path(cfg.init_adapter) / "manifest.json").read_text()) \
+            if (Path(cfg.init_adapter) / "manifest.json").is_file() else None
+    else:
+        lora = LoraConfig(r=cfg.r, lora_alpha=cfg.alpha, lora_dropout=0.0, bias="none",
+                          target_modules=["q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj"],
+                          layers_to_transform=list(range(split.L0, split.L0 + cfg.top_layers)))  # fmt: skip
+        peft_model = get_peft_model(model, lora)
+        parent = None
     split = TopLayers(peft_model.base_model.model, cfg.top_layers)
     params = [p for p in peft_model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=0.0)
@@ -272,6 +290,7 @@ def distill_llm_control(cfg: LlmControlDistillConfig, progress: Progress | None 
         "config": asdict(cfg), "samples": {"cabinet": len(idx_c), "tower": len(idx_t)},
         "dev_scores": scores, "train_seconds": time.monotonic() - t_start,
         "final_loss": float(np.mean([r["loss"] for r in log[-20:]])),
+        **({"parent": parent} if parent else {}),
     }  # fmt: skip
     (out_dir / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
     (out_dir / "train_log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in log))
