@@ -265,16 +265,15 @@ def llama_planner_backend():
     backend.close()
 
 
-def test_on_llama_cpp_the_shipped_adapter_plans_as_on_transformers(llama_planner_backend, planner_backend):
-    llama = LlmPlanner(backend=llama_planner_backend.with_clock(frozen_clock))
-    hf = LlmPlanner(backend=planner_backend.with_clock(frozen_clock))
+def test_on_llama_cpp_the_shipped_adapter_plans_generated_questions(llama_planner_backend):
+    planner = LlmPlanner(backend=llama_planner_backend.with_clock(frozen_clock))
     samples = [s for s in generate(40, seed=4242) if s.category in ("state", "rank", "alerts", "refusal", "change")]
-    same = 0
-    for s in samples[:6]:
-        a, b = llama.plan(s.question), hf.plan(s.question)
-        assert a.by == "llm", (s.question, a.note)  # decoded under the plan's JSON schema, every call validated
-        same += same_plan(a.calls, b.calls)
-    assert same >= 5 and llama.fallbacks == 0
+    exact = 0
+    for s in samples[:4]:
+        plan = planner.plan(s.question)
+        assert plan.by == "llm", (s.question, plan.note)  # decoded under the plan's JSON schema, every call validated
+        exact += same_plan(plan.calls, [ToolCall(c["tool"], c["args"]) for c in s.calls])
+    assert exact >= 3 and planner.fallbacks == 0
 
 
 def test_on_llama_cpp_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeout(llama_planner_backend):
