@@ -86,8 +86,11 @@ class LlmBackendSettings(BaseSettings):
     adapter: str = Field(
         "default", description="local only: LoRA adapter folder, 'default' (the packaged one if present) or 'none'"
     )
-    runtime: str = Field("llama.cpp", description="local only: llama.cpp (the shipped GGUF; the CPU runtime) | "
-                         "transformers (the unpacked weights; what training uses)")
+    runtime: str = Field("transformers", description="local only: transformers (the unpacked weights; the "
+                         "explainer's draft-verified decoding) | llama.cpp (the shipped GGUF). The controller and the "
+                         "planner always run on llama.cpp; the explainer stays on transformers: its first pass reads "
+                         "about 1,500 tokens of facts, which llama.cpp did not start within the 3 or 10 s budget once "
+                         "in 24 explanations (BENCHMARKS.md, LLM controller)")
     dtype: str = Field("float32", description="local transformers only: float32 | bfloat16 (bfloat16 is 4-5x slower "
                        "on CPUs without native bfloat16, as AVX2-only ones)")
     threads: int = Field(0, ge=0, description="local only: torch threads (0 = torch's default)")
