@@ -407,7 +407,7 @@ def _llm_line(llm: dict) -> str:
     n = llm["cabinet_decisions"] + llm.get("tower_decisions", 0)
     made = llm["llm_cabinet_actions"] + llm.get("llm_tower_actions", 0)
     return (f"LLM controller: it made {made:,} of {n:,} cabinet and tower decisions ({100 * made / max(n, 1):.1f} %); "
-            f"{llm['fallbacks']} served by {llm['fallback_controller']} ({llm['fallback_reasons'] or 'none'}); mean "
+            f"{llm['fallbacks']} served by {llm['fallback_controller']} ({llm.get('fallback_reasons') or 'none'}); mean "
             f"decision {llm['latency_s_mean']:.2f} s.")
 
 
