@@ -129,9 +129,9 @@ def build_samples(exp, cab: np.ndarray, approach: np.ndarray, system, idx_c: np.
         TOWER_HEAD,
         cabinet_answer,
         cabinet_fields,
-        cabinet_prompt,
+        cabinet_rest,
         tower_answer,
-        tower_prompt,
+        tower_rest,
     )  # fmt: skip
 
     fields = cabinet_fields(system.cabinets.branches)
@@ -139,10 +139,10 @@ def build_samples(exp, cab: np.ndarray, approach: np.ndarray, system, idx_c: np.
     out = []
     for t, c in idx_c:
         y = cab[t, c]
-        out.append((CABINET_HEAD, cabinet_prompt(step_view(exp, int(t), int(c)))[len(CABINET_HEAD):], fields,
+        out.append((CABINET_HEAD, cabinet_rest(step_view(exp, int(t), int(c))), fields,
                     cabinet_answer(y[0], y[1], y[2:])))  # fmt: skip
     for t, n in idx_t:
-        out.append((TOWER_HEAD, tower_prompt(tower_view(exp, int(t), int(n), fan_w))[len(TOWER_HEAD):], TOWER_FIELDS,
+        out.append((TOWER_HEAD, tower_rest(tower_view(exp, int(t), int(n), fan_w)), TOWER_FIELDS,
                     tower_answer(float(approach[t, n]))))  # fmt: skip
     return out
 

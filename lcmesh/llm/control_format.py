@@ -78,17 +78,27 @@ def cabinet_body(view: CabinetView) -> str:
     return f"s {_c(view.supply_c)}\n" + "\n".join(rows)
 
 
+def cabinet_rest(view: CabinetView) -> str:
+    """What follows the cached head in a cabinet's prompt: the plant's line, its numbers, the assistant turn."""
+    return plant_line(view.wet_bulb_c, view.htw_supply_c) + cabinet_body(view) + ASSISTANT
+
+
+def tower_rest(view: TowerView) -> str:
+    """What follows the cached head in a tower's prompt."""
+    fans = "/".join(f"{f:.0f}" for f in view.fan_pct)
+    body = (f"wb {_c(view.wet_bulb_c)} hot {_c(view.hottest_c)} ret {_c(view.htw_return_c)} mean {_c(view.mean_leaving_c)}\n"
+            f"lw {_c(view.leaving_c)} app {_c(view.approach_k)} fans {fans}")
+    return body + ASSISTANT
+
+
 def cabinet_prompt(view: CabinetView) -> str:
-    """The whole prompt for one cabinet (head, the plant's line, its numbers, the assistant turn)."""
-    return CABINET_HEAD + plant_line(view.wet_bulb_c, view.htw_supply_c) + cabinet_body(view) + ASSISTANT
+    """The whole prompt for one cabinet."""
+    return CABINET_HEAD + cabinet_rest(view)
 
 
 def tower_prompt(view: TowerView) -> str:
     """The whole prompt for one tower."""
-    fans = "/".join(f"{f:.0f}" for f in view.fan_pct)
-    body = (f"wb {_c(view.wet_bulb_c)} hot {_c(view.hottest_c)} ret {_c(view.htw_return_c)} mean {_c(view.mean_leaving_c)}\n"
-            f"lw {_c(view.leaving_c)} app {_c(view.approach_k)} fans {fans}")
-    return TOWER_HEAD + body + ASSISTANT
+    return TOWER_HEAD + tower_rest(view)
 
 
 def cabinet_answer(supply_k: float, dp_pa: float, valve_fractions: Sequence[float]) -> list[str]:

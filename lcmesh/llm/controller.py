@@ -33,16 +33,14 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from lcmesh.distill.features import DEFAULT_HOLD, HoldBand
 from lcmesh.llm.budget import Clock
 from lcmesh.llm.control_format import (
-    ASSISTANT,
     CABINET_HEAD,
     TOWER_FIELDS,
     TOWER_HEAD,
-    cabinet_body,
     cabinet_decision,
     cabinet_fields,
-    plant_line,
+    cabinet_rest,
     tower_decision,
-    tower_prompt,
+    tower_rest,
 )  # fmt: skip
 from lcmesh.llm.io_format import CabinetDecision, TowerDecision, cabinet_views, tower_views
 from lcmesh.twin.controllers.base import Controller, Observation
@@ -82,14 +80,14 @@ def make_fallback(name: str, system: SystemDescription) -> Controller:
 
 def make_control_backend(adapter: str = "default", threads: int = 1):
     """The llama.cpp runtime with the control adapter (converted to a GGUF LoRA on first use)."""
-    from lcmesh.llm.gguf_lora import lora_for
+    from lcmesh.llm.gguf_lora import runtime_files
     from lcmesh.llm.llama_backend import LlamaCppBackend
 
-    lora, adapter_id = lora_for(adapter, "control")
-    if lora is None and adapter != "none":
+    gguf, lora, adapter_id = runtime_files(adapter, "control")
+    if gguf is None and lora is None and adapter != "none":
         raise FileNotFoundError("no control adapter is packaged (lcmesh/artifacts/llm-control); run "
                                 "`lcmesh distill llm-control` or pass adapter='none' for the bare model")  # fmt: skip
-    return LlamaCppBackend(lora=lora, threads=threads, adapter_id=adapter_id)
+    return LlamaCppBackend(gguf, lora=lora, threads=threads, adapter_id=adapter_id)
 
 
 class LlmController:
@@ -131,7 +129,6 @@ class LlmController:
         self._action = PlantAction(np.zeros(C), np.zeros(C), np.full((C, B), 1.0 / B), np.zeros(N))
         self._min_approach_k = system.towers.cell.approach_min_k
         self._fan_nominal_w = system.towers.cell.fan_power_nominal_w
-        self._paced_step_s: float | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -154,7 +151,6 @@ class LlmController:
         the decision budget to that time; returns the period."""
         if not step_wall_s > 0:
             raise ValueError(f"`step_wall_s` must be > 0, got {step_wall_s}")
-        self._paced_step_s = step_wall_s
         s = self.stats
         latency = max(s["latency_s_last"], s["latency_s_total"] / max(s["decisions"], 1))
         needed = math.ceil(latency / (PACE_SHARE * step_wall_s)) if latency > 0 else 1
@@ -197,9 +193,7 @@ class LlmController:
         branch_power_w = np.asarray(obs.blade_power_w).reshape(C, B, -1).sum(axis=2)
         cabs = cabinet_views(obs.out, branch_power_w, obs.wet_bulb_k)
         towers = tower_views(obs.out, obs.wet_bulb_k, self._fan_nominal_w)
-        shared = plant_line(cabs[0].wet_bulb_c, cabs[0].htw_supply_c)
-        prompts = [(CABINET_HEAD, shared + cabinet_body(v) + ASSISTANT) for v in cabs]
-        prompts += [(TOWER_HEAD, tower_prompt(v)[len(TOWER_HEAD):]) for v in towers]
+        prompts = [(CABINET_HEAD, cabinet_rest(v)) for v in cabs] + [(TOWER_HEAD, tower_rest(v)) for v in towers]
         fields = [self._fields] * C + [TOWER_FIELDS] * N
         t0 = self.clock()
         deadline = None if self.decision_budget_s is None else t0 + self.decision_budget_s

@@ -59,14 +59,6 @@ def adapter_id(folder: Path | None) -> str:
         return folder.name
 
 
-def lora_for(spec: str | None, kind: str) -> tuple[Path | None, str]:
-    """The GGUF LoRA file for an adapter spec (converted on first use) and the adapter's id."""
-    folder = resolve_folder(spec, kind)
-    if folder is None:
-        return None, "base"
-    return cached_gguf(folder), adapter_id(folder)
-
-
 def trained_quant(folder: Path) -> str:
     try:
         config = json.loads((folder / "manifest.json").read_text()).get("config") or {}
