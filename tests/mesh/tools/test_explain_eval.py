@@ -1,4 +1,5 @@
-"""The explanation evaluator: the hand-written test set, number reading, rules, bad input and the CLI."""
+"""The explanation evaluator: the hand-written test set, number reading, rules, bad input, the CLI, valve shares given
+as percentages, and texts in Spanish, German and French."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ from typer.testing import CliRunner
 
 from lcmesh.cli import app
 from lcmesh.mesh.tools.explain_eval import FLAG_KINDS, EvalConfig, evaluate_file, evaluate_lines, evaluate_record
+from lcmesh.mesh.tools.explain_eval.bench import load_corpus
 from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
+from lcmesh.mesh.tools.vocab import DIRECTION_WORDS
 
 TESTSET = Path(__file__).resolve().parents[3] / "docs" / "examples" / "explain-eval"
 EXPECTED = json.loads((TESTSET / "expected.json").read_text())
@@ -180,3 +183,95 @@ def test_bench_explain_quick_updates_its_section(tmp_path):
     corpus = result["corpus"]
     assert corpus["test"]["texts"] > 0 and corpus["dev"]["texts"] > 0 and "rows" not in corpus["test"]
     assert "Outside corpus" in text and "| correct texts with any flag |" in text
+
+
+# --- valve shares as percentages and the four languages, on the outside corpus's dev records -------------------------
+# rule-design-day-step720-cabinet2: valves 0.2927 / 0.3645 / 0.3428 (branch 1 closed, 2 and 3 opened), load shares
+# 0.3117 / 0.3512 / 0.3371 (branch 2 most loaded), supply setpoint 24.9 -> 25.0 °C, dp held at 27.5 psi, leaving
+# water 28.88 -> 28.98 °C; g36-frontier-step1260-cabinet1: three equal valves (0.3333), everything held
+MOVED, EQUAL = "rule-design-day-step720-cabinet2", "g36-frontier-step1260-cabinet1"
+REST = {MOVED: " The supply setpoint was raised to 25.0 °C. The dp setpoint was held at 27.5 psi. The leaving-water "
+               "setpoint was raised to 29.0 °C.",
+        EQUAL: " The supply setpoint was held at 30.0 °C. The dp setpoint was held at 27.5 psi. The leaving-water "
+               "setpoint was held at 27.7 °C."}  # fmt: skip
+
+
+RECORDS, _ = load_corpus()
+
+
+def _dev(key: str, text: str) -> dict:
+    assert RECORDS[key]["split"] == "dev"  # tuned on dev only: the test part stays unread
+    return evaluate_record(RECORDS[key] | {"id": key, "explanation": text})
+
+
+@pytest.mark.parametrize("valves", [
+    "Branch 2 gets 36 % of the flow. Branch 1 gets 29 %. Branch 3 gets 34 %.",
+    "Branch 2 receives 36 % of the coolant, branch 1 29 % and branch 3 34 %.",
+    "La rama 2 recibe el 36 % del caudal, la rama 1 el 29 % y la rama 3 el 34 %.",
+    "Zweig 2 erhält 36 % des Durchflusses, Zweig 1 29 % und Zweig 3 34 %.",
+    "La branche 2 reçoit 36 % du débit, la branche 1 29 % et la branche 3 34 %.",
+])  # fmt: skip
+def test_percent_valve_shares_explain_the_valves(valves):
+    item = _dev(MOVED, valves + REST[MOVED])
+    assert item["coverage"] == 1.0 and item["flags"] == [], item["flags"]
+
+
+def test_a_percentage_named_another_share_is_not_the_valve():
+    """34 % is both branch 3's valve share and its load share: said of the load, it does not explain the valve."""
+    shares = "Branch 2 gets 36 % of the flow and branch 1 29 %. Branch 3 {}."
+    assert _dev(MOVED, shares.format("gets 34 %") + REST[MOVED])["coverage"] == 1.0
+    item = _dev(MOVED, shares.format("carries 34 % of the load") + REST[MOVED])
+    assert item["dimensions"]["valve branch 3"] is False and item["coverage"] == pytest.approx(5 / 6)
+
+
+@pytest.mark.parametrize("valves", ["Valves 33 % / 33 % / 34 %.", "Las válvulas quedan en 33 % / 33 % / 34 %.",
+                                    "Branch 2 gets 33 % of the flow, branch 1 33 % and branch 3 34 %."])  # fmt: skip
+def test_shares_rounded_to_sum_to_100_percent(valves):
+    """Three equal valves written as whole percentages that add up: one of them must read 34 %."""
+    item = _dev(EQUAL, valves + REST[EQUAL])
+    assert item["coverage"] == 1.0 and item["flags"] == [], item["flags"]
+    assert item["numbers"]["grounded"] == item["numbers"]["checked"]
+    wrong = _dev(EQUAL, "Valves 33 % / 34 % / 34 %." + REST[EQUAL])  # 101 %: not the split
+    assert {f["kind"] for f in wrong["flags"]} == {"missing_action_dimension"}
+
+
+# (a correct text, then (old, new) edits planting a wrong ranking, a wrong valve direction, a wrong hold)
+LANGUAGES = {
+    "es": (("La rama 2, la más cargada, recibe el 36 % del caudal, la rama 1 el 29 % y la rama 3 el 34 %. La "
+            "válvula de la rama 1 se cerró a 0.29 y la válvula de la rama 2 se abrió a 0.36. La consigna de impulsión "
+            "subió a 25.0 °C. La consigna de dp se mantuvo en 27.5 psi. La consigna de agua de salida de la torre "
+            "subió a 29.0 °C."),
+           [("rama 2, la más", "rama 1, la más"), ("se cerró a 0.29", "se abrió a 0.29"), ("se mantuvo", "bajó")]),
+    "de": (("Zweig 2, der am stärksten belastete, erhält 36 % des Durchflusses, Zweig 1 29 % und Zweig 3 34 %. Das "
+            "Ventil von Zweig 1 wurde auf 0.29 geschlossen, das Ventil von Zweig 2 auf 0.36 geöffnet. Der "
+            "Vorlaufsollwert wurde auf 25.0 °C erhöht. Der dp-Sollwert wurde bei 27.5 psi gehalten. Der "
+            "Austrittswasser-Sollwert des Turms wurde auf 29.0 °C angehoben."),
+           [("Zweig 2, der am", "Zweig 1, der am"), ("0.29 geschlossen", "0.29 geöffnet"), ("gehalten", "gesenkt")]),
+    "fr": (("La branche 2, la plus chargée, reçoit 36 % du débit, la branche 1 29 % et la branche 3 34 %. La vanne "
+            "de la branche 1 a été fermée à 0.29 et la vanne de la branche 2 ouverte à 0.36. La consigne de départ a "
+            "été relevée à 25.0 °C. La consigne de dp a été maintenue à 27.5 psi. La consigne d'eau de sortie de la "
+            "tour a été relevée à 29.0 °C."),
+           [("branche 2, la plus", "branche 1, la plus"), ("fermée à 0.29", "ouverte à 0.29"),
+            ("maintenue", "abaissée")]),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("lang", sorted(LANGUAGES))
+def test_the_judge_reads_spanish_german_and_french(lang):
+    text, edits = LANGUAGES[lang]
+    item = _dev(MOVED, text)
+    assert item["coverage"] == 1.0 and item["flags"] == [], item["flags"]
+    assert item["directions"] == {"checked": 5, "consistent": 5}  # valves 1 and 2, supply, dp, tower
+    for (old, new), kind in zip(edits, ("wrong_ranking", "wrong_direction", "wrong_direction")):
+        assert kind in {f["kind"] for f in _dev(MOVED, text.replace(old, new))["flags"]}, new
+
+
+@pytest.mark.parametrize("lang", ["es", "de", "fr"])
+def test_the_judge_reads_the_guards_direction_words(lang):
+    """Every up / down / hold word of vocab.DIRECTION_WORDS is a claim on the supply setpoint (raised by 0.1 K)."""
+    subject = {"es": "La consigna de impulsión", "de": "Der Vorlaufsollwert", "fr": "La consigne de départ"}[lang]
+    for pol, by_lang in DIRECTION_WORDS.items():
+        for word in by_lang.get(lang, ()):
+            item = _dev(MOVED, f"{subject} {word} 25.0 °C.")
+            assert item["directions"]["checked"] == 1, word
+            assert item["directions"]["consistent"] == (pol == "up"), word

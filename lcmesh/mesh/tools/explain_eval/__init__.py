@@ -23,8 +23,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.explain_eval import text as tx
-from lcmesh.mesh.tools.explain_eval.claims import Context, check_coverage, check_direction
+from lcmesh.mesh.tools.explain_eval.claims import Context, check_coverage, check_direction, rounded_shares
 from lcmesh.mesh.tools.explain_eval.consistency import check_bounds, check_physics, check_ranking
 from lcmesh.mesh.tools.explain_eval.grounding import _TOPIC_NAMES, ValuePool, check_grounding
 from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
@@ -63,7 +64,8 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
     ctx = Context(rec, cfg, tx.sentences(rec.text), extract_numbers(rec.text), mentions,
                   tx.decide_index_base(mentions, rec.n_branches, rec.index_base), pool)  # fmt: skip
     grounding = check_grounding(rec, ctx.numbers, pool, lambda pos: _clause_text(ctx, pos),
-                                lambda pos: _branch_at(ctx, pos), cfg, ctx.base)  # fmt: skip
+                                lambda pos: _branch_at(ctx, pos), cfg, ctx.base,
+                                frozenset(m.start for m in rounded_shares(ctx)))  # fmt: skip
     flags = [("ungrounded_number", p) for p in grounding.problems]
     dims, coverage_flags = check_coverage(ctx)
     checked, consistent, direction_flags = check_direction(ctx)
@@ -133,7 +135,9 @@ def _clause_text(ctx: Context, pos: int) -> str:
     return ""
 
 
-_FOR_BRANCH = re.compile(r"^\s*(?:\S+\s+)?(?:(?:for|to|on|in|of|at)\s+|\(\s*)(?:the\s+)?$", re.I)
+# "0.20 for branch 1", "0.20 (branch 1", "0.20 para la rama 1": the number is said of the branch after it
+_FOR_BRANCH = re.compile(r"^\s*(?:\S+\s+)?(?:\(\s*|(?:to|on|a|an)\s+" + vocab.ARTICLE + "?|"
+                         + vocab.OF_BEFORE_ENTITY.pattern + ")$", re.IGNORECASE)  # fmt: skip
 
 
 def _branch_at(ctx: Context, pos: int) -> int | None:

@@ -4,9 +4,11 @@ physics, bounds).
 Rules (docs/explanations.md, "Evaluator rules"):
 
 - coverage: each action dimension is explained: valve j by a span after "branch j" that cites its
-  fraction or talks about its opening, or by a valve sentence listing all fractions in branch order or
-  calling the split equal (when it is); the supply setpoint, flow, dp and tower action by a sentence
-  naming the dimension that cites its value or change, or states its direction.
+  fraction (a percentage there is a share of the flow unless it is named another share: "34 % of the
+  load") or talks about its opening, or by a valve sentence listing all fractions in branch order,
+  giving them as percentages rounded to sum to 100 % ("33 % / 33 % / 34 %"), or calling the split
+  equal (when it is); the supply setpoint, flow, dp and tower action by a sentence naming the dimension
+  that cites its value or change, or states its direction.
 - direction: "raised/lowered/held" (and "opens branch 2 further", "more flow") claims about this action,
   outside conditions, advice and the RECOMMENDATIONS section, compared with the change against
   ``previous_action`` (or our facts' ``*_change``); valve claims made against the other branches ("more
@@ -15,11 +17,13 @@ Rules (docs/explanations.md, "Evaluator rules"):
 
 from __future__ import annotations
 
+import re
 from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
 
+from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.explain_eval import text as tx
 from lcmesh.mesh.tools.explain_eval.grounding import ValuePool, tolerance
 from lcmesh.mesh.tools.explain_eval.numbers import K0, PSI_TO_PA, NumberMention
@@ -116,8 +120,12 @@ def _valves_covered(ctx: Context) -> set[int]:
     covered: set[int] = set()
     last: int | None = None  # the one branch the previous sentence was about, for "its valve ..."
     previous_valves = False  # the previous sentence talked about valves: "Branches 2 and 3 stay at 0.32." goes on
+    rounded = {m.start for m in rounded_shares(ctx)}
     for s in ctx.sentences:
+        before_sentence = len(covered)
         has_valve_word = bool(tx.VALVE.search(s.text)) or "VALVE" in s.heading or "VALVE" in s.section
+        if any(s.start <= p < s.end for p in rounded):
+            covered.update(range(valves.size))
         mentions = ctx.branches_in(s.start, s.end)
         if not mentions and last is not None and has_valve_word and tx.PRONOUN.search(s.text):
             if any(ctx.matches(m, "fraction", valves[last]) for m in ctx.numbers_in(s.start, s.end)):
@@ -132,11 +140,13 @@ def _valves_covered(ctx: Context) -> set[int]:
             span = ctx.rec.text[a:z]
             text = ctx.rec.text
             before = [m for m in ctx.numbers_in(s.start, b.start) if tx.words_between(text, m.end, b.start) <= 2]
-            cites = any(ctx.matches(m, "fraction", valves[j]) for m in ctx.numbers_in(a, z) + before[-1:])
+            cited = [m for m in ctx.numbers_in(a, z) + before[-1:] if ctx.matches(m, "fraction", valves[j])
+                     and not (m.unit == "%" and other_share(text, m))]  # fmt: skip
+            share = any(m.unit == "%" for m in cited)  # "branch 2 gets 41 %": a share of the flow
             talks = tx.VALVE.search(span) and (tx.ANY_DIRECTION.search(span) or tx.EQUAL_SPLIT.search(span))
-            if (cites and (has_valve_word or previous_valves or tx.VALVE.search(span))) or talks:
+            if (cited and (has_valve_word or previous_valves or tx.VALVE.search(span))) or share or talks:
                 covered.add(j)
-        previous_valves = has_valve_word
+        previous_valves = has_valve_word or len(covered) > before_sentence
         if not has_valve_word:
             continue
         fractions = [m for m in ctx.numbers_in(s.start, s.end) if any(q == "fraction" for q, _, _ in m.interpretations)]
@@ -147,6 +157,53 @@ def _valves_covered(ctx: Context) -> set[int]:
                                                          and ctx.matches(fractions[0], "fraction", valves[0]))):
             covered.update(range(valves.size))  # fmt: skip
     return covered
+
+
+# up to four words after a number or three before it, not past another number
+_WORDS_AFTER = re.compile(r"(?:[^\w%]*[^\W\d][\w'’-]*){0,4}")
+_WORDS_BEFORE = re.compile(r"(?:[^\W\d][\w'’-]*[^\w%]*){0,3}$")
+
+
+def other_share(text: str, m: NumberMention) -> bool:
+    """True when a percentage is named a share of something other than the flow: "34 % of the load", "IT load
+    34 %", "34 % de la carga" (within four words after it or three before, not past another number)."""
+    end = m.unit_end if m.unit_end > 0 else m.end
+    after = _WORDS_AFTER.match(text, end).group()
+    before = _WORDS_BEFORE.search(text[max(0, m.start - 60) : m.start]).group()
+    return bool(vocab.OTHER_SHARES.search(after) or vocab.OTHER_SHARES.search(before))
+
+
+def rounded_shares(ctx: Context) -> list[NumberMention]:
+    """Percentages that give the valve split rounded to sum to 100 % ("valves 33 % / 33 % / 34 %", "branch 2 gets
+    33 % of the flow, branch 1 33 % and branch 3 34 %"): in a valve sentence, one percentage per branch, in branch
+    order or each after its branch, each within one unit of its last digit of the branch's share."""
+    valves = ctx.rec.valves
+    if valves is None:
+        return []
+    found: list[NumberMention] = []
+    for s in ctx.sentences:
+        if not (tx.VALVE.search(s.text) or "VALVE" in s.heading or "VALVE" in s.section):
+            continue
+        shares = [m for m in ctx.numbers_in(s.start, s.end) if m.unit == "%" and not other_share(ctx.rec.text, m)]
+        runs = [shares[i : i + valves.size] for i in range(len(shares) - valves.size + 1)]
+        by_branch: dict[int, NumberMention] = {}
+        for b in ctx.branches_in(s.start, s.end):
+            a, z = ctx.span_of(b, s)
+            first = next((m for m in shares if a <= m.start < z), None)
+            if first is not None and (b.group < 0 or sum(x.group == b.group for x in ctx.branches) == 1):
+                by_branch.setdefault(ctx.entity(b), first)
+        if sorted(by_branch) == list(range(valves.size)):
+            runs.append([by_branch[j] for j in range(valves.size)])
+        for run in runs:
+            if _sums_to_100(run) and all(abs(m.value - 100 * v) < 10.0 ** -m.decimals + 1e-6
+                                         for m, v in zip(run, valves)):  # fmt: skip
+                found += run
+                break
+    return found
+
+
+def _sums_to_100(shares: list[NumberMention]) -> bool:
+    return abs(sum(m.value for m in shares) - 100.0) <= max(m.half_ulp for m in shares) + 1e-6
 
 
 def _in_order(ctx: Context, mentions: list[NumberMention], valves: np.ndarray) -> bool:

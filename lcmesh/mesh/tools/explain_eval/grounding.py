@@ -7,7 +7,8 @@ in the last digit: "36 °C" covers 35.5-36.5 °C) and the configured one (``temp
 it is a difference or a sum ("4.2 K above branch 1", "together 230 kW") and it equals the difference
 or sum of two pool values of one quantity. A grounded temperature, power or fraction written right
 after "branch j" must be branch j's own value (or a value that belongs to no branch): "branch 1 at
-40.6 °C" when 40.6 °C is branch 2's temperature is ungrounded.
+40.6 °C" when 40.6 °C is branch 2's temperature is ungrounded. Valve shares given as percentages rounded
+to sum to 100 % ("33 % / 33 % / 34 %" for three equal valves) are grounded as the split they round.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.explain_eval.numbers import K0, NumberMention
 from lcmesh.mesh.tools.explain_eval.record import EvalConfig, PoolEntry, Record
 
@@ -93,15 +95,20 @@ def check_grounding(
     branch_at,
     cfg: EvalConfig,
     base: int = 1,
+    rounded_shares: frozenset[int] = frozenset(),
 ) -> GroundingResult:
     """Score the measurements; ``clause_at(pos)`` gives the clause text, ``branch_at(pos)`` the branch
-    (0-based) whose span holds ``pos`` or None."""
+    (0-based) whose span holds ``pos`` or None; ``rounded_shares`` holds the starts of percentages that give the
+    valve split rounded to sum to 100 % (claims.rounded_shares), which are grounded."""
     res = GroundingResult()
     for m in mentions:
         if m.role != "measure":
             res.skipped += 1
             continue
         res.checked += 1
+        if m.start in rounded_shares:
+            res.grounded += 1
+            continue
         hits: list[PoolEntry] = []
         for q, x, h in m.interpretations:
             hits += pool.direct(q, x, tolerance(q, x, h, cfg))
@@ -150,16 +157,20 @@ def _misattributed(hits: list[PoolEntry], branch: int | None, pool: "ValuePool")
 # what a temperature is said to be: the nearest name before it in its clause (or right after it: "the 18.6 °C wet
 # bulb"); only the setpoints and the wet bulb are checked, the other names stop the search
 _TOPIC_NAMES = re.compile(
-    r"(?P<wet_bulb>wet[\s-]?bulb)"
+    r"(?P<wet_bulb>wet[\s-]?bulb|" + vocab.alternation(*vocab.quantity_phrases({"wet_bulb"}, only=True)) + ")"
     r"|(?P<lw_setpoint>(?:leaving[\s-]+water|LWT|tower|(?:condenser|cold)[\s-]+water)"
     r"(?:[\s-]+(?:water|leaving-water|temperature))?[\s-]+"
-    r"set[\s-]?points?)"
+    r"set[\s-]?points?|" + vocab.alternation(*vocab.quantity_phrases({"lw_setpoint", "lw"}, only=True),
+                                            *vocab.TOWER_SETPOINT_WORDS) + ")"
     r"|(?P<supply_setpoint>(?:supply|CDU|coolant)(?:[\s-]+(?:water|coolant|temperature|temp|supply))*[\s-]+"
-    r"set[\s-]?points?)"
+    r"set[\s-]?points?|" + vocab.alternation(*vocab.quantity_phrases({"supply_setpoint", "supply"}, only=True)) + ")"
     r"|(?P<other>measured|\bmeas\b|deliver\w*|tower\s+water|leaving[\s-]+water|condenser[\s-]+water|return|supply"
     r"|coolant|branch\w*"
     r"|blade\w*|group|approach|above|below|hottest|coolest|warmest|spread|previous\w*"
-    r"|limit|band|edge|ceiling|floor|threshold|bound|nears?)",
+    r"|limit|band|edge|ceiling|floor|threshold|bound|nears?"
+    # the same names in es / de / fr
+    r"|medid[oa]s?|gemessen\w*|mesurée?s?|retorno|rücklauf\w*|retour|impulsión|vorlauf\w*|départ|agua\s+de\s+salida"
+    r"|austrittswasser\w*|eau\s+de\s+sortie|ramas?|zweig\w*|branches?|banda|bande|límite|grenze|limite)",
     re.IGNORECASE,
 )
 

@@ -19,6 +19,7 @@ import functools
 import re
 from dataclasses import dataclass, field
 
+from lcmesh.mesh.tools import vocab
 
 K0 = 273.15
 PSI_TO_PA = 6894.757
@@ -28,69 +29,29 @@ _NUM = re.compile(
 )
 _DATE = re.compile(r"\b\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2})?Z?)?\b")
 _CLOCK = re.compile(r"\b\d{1,2}:\d{2}(?::\d{2})?\b")
-_SPACE = r"[\s\u00a0\u202f]*"
-
-
-def _unit(pattern: str) -> re.Pattern:
-    """A unit right after a number, after optional (also non-breaking) space or a hyphen ("30.9-C", LLMs write
-    it); ``~`` in ``pattern`` stands for optional space."""
-    return re.compile("(?:" + _SPACE + "|-)" + "(?:" + pattern.replace("~", _SPACE) + ")")
-
-
-# (regex, normalized unit), tried in order right after the number
-_UNITS: list[tuple[re.Pattern, str]] = [
-    (_unit(r"[°º]~C(?![a-zA-Z])|℃"), "degC"),
-    (_unit(r"deg(?:rees?)?\.?~(?:C\b|Celsius\b)|degC\b|Celsius\b|C\b(?![-'’/])"), "degC"),
-    (_unit(r"[°º]~F\b|℉|deg(?:rees?)?\.?~(?:F\b|Fahrenheit\b)|degF\b"), "degF"),
-    (_unit(r"K\b(?![-'’])|[Kk]elvins?\b"), "K"),
-    (_unit(r"(?:kWh|MWh)\b"), "energy"),
-    (_unit(r"MW\b|[Mm]egawatts?\b"), "MW"),
-    (_unit(r"kW\b|KW\b|[Kk]ilowatts?\b"), "kW"),
-    (_unit(r"W\b|[Ww]atts?\b"), "W"),
-    (_unit(r"kg~/~s\b|kg~s(?:\^?-1|⁻¹)|kg per s(?:ec(?:ond)?)?\b"), "kg/s"),
-    (_unit(r"[Ll]~/~s\b|lit(?:re|er)s? per second\b"), "L/s"),
-    (_unit(r"kg~/~min\b|kg per min(?:ute)?\b"), "kg/min"),
-    (_unit(r"kg~/~h(?:r|our)?\b|kg per hour\b"), "kg/h"),
-    (_unit(r"lbs?~/~s\b"), "lb/s"),
-    (_unit(r"lbs?~/~min\b"), "lb/min"),
-    (_unit(r"m(?:3|³|\^3)~/~h(?:r|our)?\b|cubic met(?:re|er)s? per hour\b"), "m3/h"),
-    (_unit(r"[Ll]~/~min\b|lpm\b|lit(?:re|er)s? per minute\b"), "L/min"),
-    (_unit(r"gpm\b|GPM\b|gal(?:lons?)?~/~min\b|gallons? per minute\b"), "gpm"),
-    (_unit(r"psid?\b|PSI\b"), "psi"),
-    (_unit(r"kPa\b"), "kPa"),
-    (_unit(r"mbar\b"), "mbar"),
-    (_unit(r"MPa\b"), "MPa"),
-    (_unit(r"Pa\b"), "Pa"),
-    (_unit(r"bar\b"), "bar"),
-    (_unit(r"percentage points?\b|pp\b"), "pp"),
-    (_unit(r"%|percent\b|per~cent\b"), "%"),
-    (_unit(r"J~/~(?:\(~kg~[·*. ]?~K~\)|kg~/?~K\b)"), "J/(kg K)"),
-    (_unit(r"[kMG]?J\b"), "energy"),
-    (re.compile(r"(?:x\b|" + _SPACE + r"(?:times\b|-fold\b))"), "x"),
-    (_unit(r"(?:ms|s|secs?|seconds?|min|mins|minutes?|h|hrs?|hours?|days?|weeks?)\b"), "time"),
-]
-
-
-_INDEX_WORDS = {
-    "branch", "branches", "cabinet", "cabinets", "cdu", "cdus", "tower", "towers", "cell", "cells", "group",
-    "groups", "valve", "valves", "rack", "racks", "node", "nodes", "head", "heads", "rank", "category", "level",
-    "step", "index", "number", "no", "pump", "pumps", "loop", "zone", "row", "option", "priority", "id", "phase",
-    "stage", "agent", "bg", "bgs", "ct", "cts", "b", "c", "t", "item", "decision", "line", "section", "table",
-    "figure", "fig", "appendix", "equation", "eq", "algorithm", "case", "scenario", "example", "version",
-}  # fmt: skip
+# words an index follows ("branch 2", "rama 2", "Schrank 3", "step 4"): the plant's entities in the four languages
+# (vocab.py), and English document words
+_ENTITY_NOUNS = vocab.alternation(*(w for by_lang in vocab.ENTITY_WORDS.values() for lang in vocab.LANGUAGES
+                                    for w in by_lang[lang]),
+                                  *(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))  # fmt: skip
+_INDEX_WORD = re.compile(_ENTITY_NOUNS + "|" + vocab.alternation(
+    "cells?", "nodes?", "heads?", "rank", "category", "level", "step", "index", "number", "no", "pumps?", "loop",
+    "zone", "row", "option", "priority", "id", "phase", "stage", "agent", "cts?", "b", "c", "t", "item", "decision",
+    "line", "section", "table", "figure", "fig", "appendix", "equation", "eq", "algorithm", "case", "scenario",
+    "example", "version", "blades", "lames"), re.IGNORECASE)  # fmt: skip
 _COUNT_NOUNS = re.compile(
-    r"^[\s\u00a0]*(?:of[\s\u00a0]+\d+[\s\u00a0]+)?(?:blade[- ]groups?|branch(?:es)?|cabinets?|towers?|cells?|groups?"
-    r"|valves?|pumps?|cdus?|agents?|steps?|racks?|nodes?|decimals?|digits?|fans?|heads?|loops?|levels?|sections?"
-    r"|dimensions?|actions?|outputs?|categories)\b",
+    r"^[\s\u00a0]*(?:(?:of|de|von|sur)[\s\u00a0]+\d+[\s\u00a0]+)?(?:" + _ENTITY_NOUNS + "|"
+    + vocab.alternation(*vocab.COUNTED_NOUNS) + r")\b",
     re.IGNORECASE,
 )
 _IDENT_BEFORE = re.compile(r"[A-Za-z_]$|[A-Za-z]-$|\d\.$")  # B1, Llama-3, 1.2.3
 _HASH_BEFORE = re.compile(r"(?:#|\bno\.)[\s\u00a0]*$", re.IGNORECASE)
 _PLUSMINUS_BEFORE = re.compile(r"(?:±|\+/-|\+-)[\s\u00a0]*$")
-_WORD_BEFORE = re.compile(r"([A-Za-z]+)[\s\u00a0]*\(?$")
+_WORD_BEFORE = re.compile(r"([^\W\d_]+)[\s\u00a0]*\(?$")
 _RANGE_DASH_BEFORE = re.compile(r"\d[\s\u00a0]*$|[A-Za-z]$")
 _ORDINAL = re.compile(r"^(?:st|nd|rd|th)\b")
-_CHAIN = re.compile(r"^[\s\u00a0]*(?:,|and|or|&|/|,[\s\u00a0]*and|to|through|-|–)[\s\u00a0]*$")
+_AND_OR = vocab.alternation(*vocab.function_words("and"), *vocab.function_words("or"))
+_CHAIN = re.compile(r"^[\s\u00a0]*(?:,|" + _AND_OR + r"|&|/|,[\s\u00a0]*" + _AND_OR + r"|to|through|-|–)[\s\u00a0]*$")
 _RANGE = re.compile(r"^[\s\u00a0]*(?:-|–|—|to|and|/)[\s\u00a0]*$")
 
 
@@ -160,18 +121,15 @@ def _classify(m: NumberMention, text: str, masked: str, previous: NumberMention 
     if _HASH_BEFORE.search(before) or _ORDINAL.match(after):
         m.role = "index"
         return
-    for pattern, unit in _UNITS:
-        u = pattern.match(text, m.end)
-        if u:
-            m.unit, m.unit_end = unit, u.end()
-            break
+    if (u := vocab.unit_at(text, m.end)) is not None:
+        m.unit, m.unit_end = u
     if _PLUSMINUS_BEFORE.search(before):
         m.role = "tolerance"
     elif m.unit == "time":
         m.role = "time"
     elif m.unit or m.decimals > 0:
         return
-    elif (word := _WORD_BEFORE.search(before)) and word.group(1).lower() in _INDEX_WORDS:
+    elif (word := _WORD_BEFORE.search(before)) and _INDEX_WORD.fullmatch(word.group(1)):
         m.role = "index"
     elif previous is not None and previous.role == "index" and _CHAIN.match(masked[previous.end : m.start]):
         m.role = "index"  # "branches 1, 2 and 3"

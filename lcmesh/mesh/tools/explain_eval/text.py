@@ -1,13 +1,17 @@
-"""Reading explanation text: sections, sentences, clauses, branch mentions and the word lists.
+"""Reading explanation text: sections, sentences, clauses, branch mentions and the patterns the checks use.
 
-Everything here is a regular expression over plain text; nothing is learned. The word lists are
-the documented vocabulary of docs/explanations.md ("Evaluator rules").
+Everything here is a regular expression over plain text; nothing is learned. The words (in English,
+Spanish, German and French) are ``lcmesh.mesh.tools.vocab``'s, which the chat's guard reads too; this
+module compiles them into the patterns of docs/explanations.md ("Evaluator rules").
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+
+from lcmesh.mesh.tools import vocab
+from lcmesh.mesh.tools.vocab import function_words, words
 
 I = re.IGNORECASE
 
@@ -111,19 +115,17 @@ def _row(cells: list[str]) -> str:
 # --- sections and sentences -------------------------------------------------------------------
 
 _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
-_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9\"'(\[*•-])")
+_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔ\"'(\[*•¿¡-])")
+_AND = vocab.alternation(*function_words("and"))
+_BRANCH_WORDS = vocab.alternation(*(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))
 _CLAUSE_SPLIT = re.compile(
-    r";|:(?!\d)|\s[—–]\s|\s-\s|,\s+and\s+"
-    r"|,?\s+(?=(?:but|while|whereas|although|though|because|since|if|unless|when|whenever|so that|which|otherwise)\b)"
-    r"|,\s+(?=(?:and\s+)?(?:branch|blade[\s-]group|group)\s*\d)",
+    rf";|:(?!\d)|\s[—–]\s|\s-\s|,\s+{_AND}\s+"
+    rf"|,?\s+(?={vocab.alternation(*function_words('but'))}\b)"
+    rf"|,\s+(?=(?:{_AND}\s+)?{vocab.ARTICLE}?{_BRANCH_WORDS}\s*\d)",
     I,
 )
-_CONDITIONAL_START = re.compile(r"^\W*(?:if|unless|when|whenever|should|in case|otherwise)\b", I)
-_MODAL = re.compile(
-    r"\b(?:would|could|should|might|may|can|consider|recommend\w*|suggest\w*|try|aim|plan|ought|prefer"
-    r"|whether|if|unless|need to|needs to|worth)\b",
-    I,
-)
+_CONDITIONAL_START = re.compile(r"^\W*" + vocab.alternation(*function_words("if")) + r"\b", I)
+_MODAL = words(*function_words("would"))
 
 
 def heading_of(line: str) -> tuple[int, str] | None:
@@ -183,12 +185,10 @@ def _clauses(sentence: str, offset: int) -> list[Clause]:
 
 # --- branch mentions ----------------------------------------------------------------------------
 
-_NOT_A_VALUE = r"(?![.,]\d)(?!\s*(?:%|°|℃|K\b|[kM]?W\b|psi|kPa|kg|C\b))"  # "valve 2 to 50 %" lists no branch 50
-_NUM_LIST = r"\d+" + _NOT_A_VALUE + r"(?:\s*(?:,\s*and|,|and|or|&|/|to|through|-|–)\s*\d+" + _NOT_A_VALUE + r")*"
-_BRANCH = re.compile(
-    r"\b(?:branch(?:es)?|blade[- ]groups?|BGs?|groups?|valves?)[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I
-)
-_LIST_JOIN = re.compile(r"\s*(?:,|,?\s*and|&)\s*", I)
+_JOIN = vocab.alternation(r",\s*" + _AND, ",", _AND, *function_words("or"), "&", "/", "to", "through", "-", "–")
+_NUM_LIST = r"\d+" + vocab.NOT_A_VALUE + r"(?:\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE + r")*"
+_BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I)
+_LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&)\s*" + vocab.ARTICLE + "?", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
 _ORDINALS = {"first": 1, "second": 2, "third": 3, "fourth": 4, "fifth": 5, "sixth": 6, "seventh": 7, "eighth": 8}
 _BRANCH_ORDINAL = re.compile(r"\b(?P<ord>" + "|".join(_ORDINALS) + r")\s+(?:branch|blade[- ]group|group|valve)\b", I)
@@ -221,113 +221,28 @@ def decide_index_base(mentions: list[BranchMention], n_branches: int, declared: 
     return 0 if 0 in raws else 1
 
 
-# --- vocabulary ---------------------------------------------------------------------------------
+# --- patterns (vocab.py's words in the four languages) ------------------------------------------
 
-SUPPLY_SETPOINT = re.compile(
-    r"(?:supply|coolant|CDU|inlet)(?:[\s-]+(?:water|coolant|temperature|temp))*[\s-]*(?:set[\s-]?points?|targets?)"
-    r"|\bT_?cdu\b|\bsupply[\s-]+setpoint",
-    I,
-)
-SUPPLY_ANY = re.compile(
-    SUPPLY_SETPOINT.pattern
-    + r"|supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature|coolant[\s-]+(?:supply[\s-]+)?temperature"
-    + r"|\bsupply\b|\bcoolant\b",
-    I,
-)
-
-
-def _words(*alternatives: str) -> re.Pattern:
-    """One case-insensitive pattern matching any of the alternatives as whole words."""
-    return re.compile(r"\b(?:" + "|".join(alternatives) + r")\b", I)
-
-
-FLOW = _words(r"flow(?:[\s-]+rate)?", r"pump[\s-]+speed", "Q_?cdu", "mass flow")
-DP = re.compile(r"\bdp\b|Δ\s?p\b|\bdelta[\s-]?p\b|differential[\s-]+pressure|\bpressure\b|pump head", I)
-_TOWER_WATER = r"leaving[\s-]+water|\bLWT\b|(?:condenser|cold)[\s-]+water"  # the water the towers send back
-TOWER = re.compile(r"cooling[\s-]+towers?|\btowers?\b|\bCTs?\b|" + _TOWER_WATER, I)
-# "the tower fans slowed down" is about the fans, not the leaving-water setpoint
-TOWER_SETPOINT = re.compile(_TOWER_WATER + r"|tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point|\bCT\b"
-                            r"|towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)", I)
-VALVE = _words(
-    "valves?", "fractions?", "openings?", "split", r"allocat\w*", r"distribut\w*", r"share of (?:the )?flow",
-    r"of (?:the )?(?:\w+ )?flow", "flow share", r"open\w*", r"clos\w*", r"throttl\w*", r"tilt\w*", r"emphasi[sz]\w*",
-    r"favou?r\w*",
-)
-EQUAL_SPLIT = _words(r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
-                     "same (?:fraction|opening|share)")
-PRONOUN = _words("it", "its")
-EACH = _words("each", "every", "all")
-
-# direction words, with the side their object is on: "after" (raises the setpoint), "before" (the setpoint
-# rises), "both" (raised the setpoint / the setpoint is raised)
-_BEFORE_NOW = r"than\s+(?:before|previously|the\s+previous|last)"
-# an object right after a verb: "drops the setpoint" is a claim about the setpoint, "the setpoint drops to" is not
-_OBJECT_WORDS = (r"\s+(?:the|its|their|it|this|that|these|those|both|all|each|branch(?:es)?|blade|groups?|valves?"
-                 r"|supply|dp|tower|cdu|coolant|LWT|B\d)\b")
-_OBJECT, _NO_OBJECT = f"(?={_OBJECT_WORDS})", f"(?!{_OBJECT_WORDS})"
-# phrasal verbs: "bumps up the setpoint", "brought down", "crept up"; verbs that go with up/down but do not move a
-# setpoint (heats up, sets up, cools down, settles down) are left out
-_NOT_PHRASAL_UP = (r"(?!(?:held|kept|heat(?:s|ed)?|warm(?:s|ed)?|pick(?:s|ed)?|back(?:s|ed)?|sets?|left|make?s?|made"
-                   r"|end(?:s|ed)?|show(?:s|ed)?|sum(?:s|med)?|line(?:s|d)?|hold(?:s)?|keeps?|look(?:s|ed)?|use(?:s|d)?"
-                   r"|add(?:s|ed)?|build(?:s)?|built|runs?|ran|catch(?:es)?|caught|follow(?:s|ed)?|speak(?:s)?|spoke"
-                   r"|go(?:es)?|went|is|was|are|were|be|been)\b)")
-_NOT_PHRASAL_DOWN = (r"(?!(?:cool(?:s|ed)?|calm(?:s|ed)?|settl(?:e|es|ed)|held|holds?|kept|keeps?|sets?|writ(?:e|es)"
-                     r"|wrote|written|break(?:s)?|broke|broken|shut(?:s)?|note(?:s|d)?|look(?:s|ed)?|track(?:s|ed)?"
-                     r"|go(?:es)?|went|is|was|are|were|be|been|count(?:s|ed)?)\b)")
-_IRREGULAR_PAST = r"(?:brought|taken|took|wound|crept|dialled|dialed|cranked|ratcheted)"
-_DIRECTION_WORDS: list[tuple[str, str, tuple[str, ...]]] = [
-    ("up", "after", ("rais(?:e|es|ing)", "increas(?:e|es|ing)", "boost(?:s|ing)?", "lift(?:s|ing)?", "widen(?:s|ing)?",
-                     r"open(?:s|ing)?\s+(?:up|further|wider|more)", r"nudg(?:e|es|ing)\s+up", r"step(?:s|ping)?\s+up",
-                     r"ups" + _OBJECT, r"hik(?:e|es|ing)", r"elevat(?:e|es|ing)", r"open(?:s|ing)?" + _OBJECT,
-                     _NOT_PHRASAL_UP + r"[a-z]+(?:s|ing)\s+up" + _OBJECT)),
-    ("up", "both", ("raised", "increased", "boosted", "lifted", "widened", r"opened\s+(?:up|further|wider|more)",
-                    r"stepped\s+up", r"bumped(?:\s+up)?", r"nudged\s+up", r"pushed\s+up", "upped", "hiked", "elevated",
-                    # "opened to 0.40", not "the most opened" or "opened the most" (a ranking)
-                    r"(?<!most\s)(?<!least\s)(?<!more\s)(?<!less\s)(?<!fully\s)opened"
-                    r"(?!\s+(?:\w+\s+){0,2}(?:the\s+)?(?:most|least)\b)",
-                    r"adjust(?:s|ed|ing)?\s+upwards?", r"(?:moved|shifted|pushed|nudged)\s+higher",
-                    _IRREGULAR_PAST + r"\s+up",
-                    r"(?!(?:held|kept|heated|warmed|picked|backed|set|left)\b)[a-z]+ed\s+up")),
-    ("up", "before", ("ris(?:e|es|ing)", "rose", r"goes\s+up", r"went\s+up", r"moves?\s+up", r"up\s+by", r"up\s+from",
-                      r"higher\s+" + _BEFORE_NOW, r"climb(?:s|ed|ing)?", "grew", r"grows?", r"creep(?:s|ing)?\s+up",
-                      r"tick(?:s|ing)?\s+up", r"edg(?:e|es|ing)\s+up", r"inch(?:es|ing)?\s+up")),
-    ("down", "after", (r"lower(?:s|ing)?" + _OBJECT, "decreas(?:e|es|ing)", "reduc(?:e|es|ing)", "cut(?:s|ting)?",
-                       r"step(?:s|ping)?\s+down", r"drop(?:s|ping)?" + _OBJECT, r"eas(?:e|es|ing)" + _OBJECT,
-                       r"trim(?:s|ming)?", r"shav(?:e|es|ing)", r"slash(?:es|ing)?", r"lessen(?:s|ing)?",
-                       _NOT_PHRASAL_DOWN + r"[a-z]+(?:s|ing)\s+(?:down|back)" + _OBJECT)),
-    ("down", "both", ("lowered", "decreased", "reduced", "closed", "throttled", "narrowed", r"stepped\s+down",
-                      r"cut\s+back", "clos(?:e|es|ing)", "throttl(?:e|es|ing)", "narrow(?:s|ing)?", "trimmed", "eased",
-                      "cut", "dropped", r"backed\s+off", r"pulled\s+down", r"nudged\s+down", "shaved", "slashed",
-                      "lessened",
-                      r"adjust(?:s|ed|ing)?\s+downwards?", r"(?:moved|shifted|pushed|nudged)\s+lower",
-                      _IRREGULAR_PAST + r"\s+(?:down|back)",
-                      r"(?!(?:cooled|calmed|settled|held|kept|set)\b)[a-z]+ed\s+(?:down|back)")),
-    ("down", "before", (r"drop(?:s|ping)?" + _NO_OBJECT, "falls?", "fell", r"goes\s+down", r"went\s+down",
-                        r"moves?\s+down",
-                        r"down\s+by", r"down\s+from", r"lower\s+" + _BEFORE_NOW, r"dip(?:s|ped|ping)?",
-                        r"slip(?:s|ped|ping)?", r"eas(?:e|es|ing)" + _NO_OBJECT, r"creep(?:s|ing)?\s+down",
-                        r"tick(?:s|ing)?\s+down", r"edg(?:e|es|ing)\s+down", r"inch(?:es|ing)?\s+down")),
-    ("hold", "after", ("hold(?:s|ing)?", "keep(?:s|ing)?", "maintain(?:s|ing)?", r"leaves?(?!\s+water)",
-                       r"pin(?:s|ning)?", r"freez(?:e|es|ing)")),
-    ("hold", "both", ("held", "kept", "maintained", "unchanged", r"left\s+(?:at|unchanged|alone)", "fixed",
-                      r"no\s+change", "parked", "pinned", "frozen", "untouched", "unaltered", "retained", "preserved")),
-    ("hold", "before", ("steady", "constant", "stays?", "stayed", "remains?", "remained", r"(?:is|was)\s+not\s+changed",
-                        r"did\s+not\s+change")),
-]  # fmt: skip
-DIRECTION = [(pol, side, _words(*alts)) for pol, side, alts in _DIRECTION_WORDS]
-ANY_DIRECTION = _words(*(a for _, _, alts in _DIRECTION_WORDS for a in alts), "more", "less", "larger", "smaller",
-                       "bigger", "greater", "higher", "lower", "extra", "reduced")  # fmt: skip
-# valve-share phrasing: "more flow", "a larger share", "less coolant"
-_SHARE_NOUN = r"\s+(?:\w+\s+)?(?:flow|coolant|share|fraction|opening)"
-VALVE_MORE = _words(r"(?:more|larger|bigger|greater|higher|extra)" + _SHARE_NOUN)
-VALVE_LESS = _words(r"(?:less|smaller|lower|reduced)" + _SHARE_NOUN)
-RELATIVE_TO_OTHERS = _words("than", "equal", "even", "average", "others?")
-RELATIVE_TO_LOAD = _words(r"(?:load|power)\s+share", r"its share of (?:the )?(?:load|power)")
+SUPPLY_SETPOINT = vocab.dimension("supply", setpoint=True)
+SUPPLY_ANY = vocab.dimension("supply")
+FLOW = vocab.dimension("flow")
+DP = vocab.dimension("dp")
+TOWER = vocab.dimension("tower")
+TOWER_SETPOINT = vocab.dimension("tower", setpoint=True)
+VALVE = vocab.dimension("valve")
+EQUAL_SPLIT = vocab.split_words("equal")
+PRONOUN = vocab.split_words("its")
+EACH = vocab.split_words("each")
+DIRECTION = [(pol, side, words(*forms)) for pol, side, forms in vocab.DIRECTIONS]
+ANY_DIRECTION = words(*(f for _, _, forms in vocab.DIRECTIONS for f in forms), *vocab.COMPARISON_WORDS)
+VALVE_MORE = vocab.split_words("more")
+VALVE_LESS = vocab.split_words("less")
+RELATIVE_TO_OTHERS = vocab.split_words("than_others")
+RELATIVE_TO_LOAD = vocab.split_words("than_load")
 PASSIVE_AUX = re.compile(r"\b(?:is|was|are|were|be|been|being|gets?|got|has|have|had)\s+(?:\w+\s+)?$", I)
-NEGATION = re.compile(_words("not", "no", "never", "cannot", "without", "neither", "nor", r"instead\s+of",
-                             r"rather\s+than").pattern + r"|n[’']t\b", I)  # "didn't": no word boundary before n't
-
-NEGATED_HOLD = re.compile(r"(?:is|was)\s+not\s+changed|did\s+not\s+change|no\s+change", I)
+NEGATION = re.compile(words(*function_words("not")).pattern + r"|n[’']t\b", I)  # "didn't": no word boundary before n't
+NEGATED_HOLD = re.compile(r"(?:is|was)\s+not\s+changed|did\s+not\s+change|no\s+change|no\s+cambió"
+                          r"|nicht\s+(?:verändert|geändert)|(?:n['’]a\s+)?pas\s+(?:changé|bougé)", I)  # fmt: skip
 
 # physics: cause adjectives right before a dimension word, and effect targets with their words
 CAUSE_ADJ_UP = re.compile(
@@ -337,57 +252,38 @@ CAUSE_ADJ_DOWN = re.compile(
     r"\b(?:lower|colder|cooler|less|reduced|lowered|smaller|closing|lowering|reducing|decreasing|throttling)\s*$", I
 )
 TARGETS = {
-    "temp": _words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
+    "temp": words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
                    "components?", "hardware", r"hot\s?spots?", "branch(?:es)?"),
-    "fan": _words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)"),
-    "pump": _words(r"pump(?:ing)?[\s-]+(?:power|energy|work)"),
-    "energy": _words("energy", "electricity", r"power\s+(?:use|draw|consumption)"),
+    "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)"),
+    "pump": words(r"pump(?:ing)?[\s-]+(?:power|energy|work)"),
+    "energy": words("energy", "electricity", r"power\s+(?:use|draw|consumption)"),
 }  # fmt: skip
 _RISE = ("ris(?:e|es|ing)", "rose", "increas(?:e|es|ed|ing)", "rais(?:e|es|ed|ing)", "higher")
 _FALL = ("lower(?:s|ed|ing)?", "drop(?:s|ped)?", "decreas(?:e|es|ed|ing)", "reduc(?:e|es|ed|ing)")
 EFFECT_UP = {
-    "temp": _words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?"),
-    "power": _words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
+    "temp": words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?"),
+    "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
                     "more", "costs?", "adds?"),
 }  # fmt: skip
 EFFECT_DOWN = {
-    "temp": _words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
+    "temp": words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
                    r"more\s+cooling"),
-    "power": _words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
+    "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
                     "idles?"),
 }  # fmt: skip
-REASON = _words("because", "since", "due to", "as a result of", "given")
+REASON = words("because", "since", "due to", "as a result of", "given")
 BELOW_WET_BULB = re.compile(
     r"(?:leaving[\s-]+water|LWT|tower\s+water|water)[^.;]{0,60}?\bbelow\s+(?:the\s+)?wet[\s-]?bulb", I
 )
 
 # ranking claims
-_VALVE_NOUN = r"\s+(?:valve\s+)?(?:valve|opening|fraction|share\s+of\s+(?:the\s+)?flow)"
-_LOAD_NOUN = r"\s+(?:\w+\s+)?(?:load|power|heat|workload|utili[sz]ation|demand)"
 SUPERLATIVES: list[tuple[str, str, re.Pattern]] = [
-    ("temp", "max", _words("hottest", "warmest", r"highest\s+(?:blade\s+|branch\s+)?temperature",
-                           r"most\s+thermally\s+stressed")),
-    ("temp", "min", _words("coolest", "coldest", r"lowest\s+(?:blade\s+|branch\s+)?temperature")),
-    ("valve", "max", _words("(?:largest|biggest|highest|widest)" + _VALVE_NOUN, r"most\s+(?:open(?:ed)?|flow)",
-                            r"open(?:s|ed)?\s+(?:\w+\s+){0,3}the\s+most", "widest",
-                            # indirect: "the split tilts toward branch 3", "the allocation emphasizes branch 3"
-                            r"tilt(?:s|ed|ing)?\s+(?:\w+\s+)?toward(?:s)?(?![^;]*\b(?:from|away)\b)",
-                            r"emphasi[sz](?:e|es|ed|ing)(?![^;]*\b(?:from|away)\b)",
-                            r"favou?r(?:s|ed|ing)(?![^;]*\b(?:from|away)\b)")),
-    ("valve", "min", _words("(?:smallest|lowest|narrowest)" + _VALVE_NOUN, r"least\s+(?:open(?:ed)?|flow)",
-                            r"most\s+closed")),
-    ("load", "max", _words(r"most\s+(?:heavily\s+)?loaded", r"most\s+(?:of\s+the\s+)?(?:load|power|heat|work)",
-                           "heaviest", "(?:highest|largest|biggest|greatest)" + _LOAD_NOUN, "busiest", r"peak\s+load")),
-    ("load", "min", _words(r"least\s+(?:heavily\s+)?loaded", r"least\s+(?:of\s+the\s+)?(?:load|power|heat|work)",
-                           "lightest", "(?:lowest|smallest)" + _LOAD_NOUN, "idlest")),
+    (kind, "max" if order == "highest" else "min", words(*vocab.superlative_forms(kind, order)))
+    for kind, order in vocab.SUPERLATIVES if kind != "any"
 ]  # fmt: skip
-COMPARATIVES: list[tuple[str, str, re.Pattern]] = [
-    ("temp", "gt", _words("hotter", "warmer")),
-    ("temp", "lt", _words("cooler", "colder")),
-    ("load", "gt", _words(r"more\s+(?:heavily\s+)?loaded", r"(?:more|higher)\s+(?:load|power|heat)")),
-    ("load", "lt", _words(r"less\s+(?:heavily\s+)?loaded", r"(?:less|lower)\s+(?:load|power|heat)")),
-]  # fmt: skip
-THAN = _words("than")
+COMPARATIVES: list[tuple[str, str, re.Pattern]] = [(kind, op, words(*forms))
+                                                   for (kind, op), forms in vocab.COMPARATIVES.items()]  # fmt: skip
+THAN = words("than")
 
 
 def words_between(text: str, a: int, b: int) -> int:
