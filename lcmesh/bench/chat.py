@@ -31,6 +31,7 @@ from lcmesh.mesh.agents.ui.facts import format_value, numbers_in
 from lcmesh.mesh.tools import registry
 
 QUESTIONS = "chat_questions.jsonl"
+QUESTION_SETS = {"a": QUESTIONS, "b": "chat_questions_b.jsonl"}  # b: written by an outside author (issue 24), test only
 
 
 @dataclass(frozen=True)
@@ -55,9 +56,9 @@ def canonical(tool: str, args: dict) -> str:
         return json.dumps(args, sort_keys=True)
 
 
-def load_questions(split: str | None = None) -> list[Question]:
-    """The question set (one split, or all)."""
-    text = resources.files("lcmesh.bench.data").joinpath(QUESTIONS).read_text(encoding="utf-8")
+def load_questions(split: str | None = None, question_set: str = "a") -> list[Question]:
+    """A question set's questions (one split, or all): "a" the first set, "b" the outside author's."""
+    text = resources.files("lcmesh.bench.data").joinpath(QUESTION_SETS[question_set]).read_text(encoding="utf-8")
     out = []
     for line in text.splitlines():
         if not line.strip():
@@ -159,9 +160,9 @@ def reference(q: Question, run: Callable[[str, dict], registry.ToolResult]) -> R
 
 def judge(answer: dict, ref: Reference) -> bool:
     """Whether `answer` is right against the reference computed from the same state."""
-    if ref.refuse:
-        return bool(answer.get("refused"))
-    if answer.get("refused"):
+    if ref.refuse:  # "I can't answer that as asked" is an honest refusal
+        return bool(answer.get("refused") or answer.get("declined"))
+    if answer.get("refused") or answer.get("declined"):  # what it gave instead is not an answer
         return False
     text = answer["answer"]
     if ref.errors and not ref.keys:
@@ -179,6 +180,7 @@ class Row:
     grounded: bool
     refused: bool
     expected_refusal: bool
+    declined: bool  # "I can't answer that as asked", with what it could give instead
     planned_by: str
     seconds: float
     answer: str
@@ -201,7 +203,8 @@ def run_split(questions: list[Question], engine: Any, run_tool: Callable, *, clo
         seconds = clock() - t0
         plan = Counter((c["tool"], canonical(c["tool"], c["args"])) for c in answer.get("plan", []))
         rows.append(Row(q.id, q.tags, plan == Counter(q.calls), judge(answer, ref), bool(answer["grounded"]),
-                        bool(answer.get("refused")), q.refuse, str(answer.get("planned_by", "?")).split(":")[0],
+                        bool(answer.get("refused")), q.refuse, bool(answer.get("declined")),
+                        str(answer.get("planned_by", "?")).split(":")[0],
                         seconds, answer["answer"], states(answer["answer"], ref.keys)))  # fmt: skip
         if progress:
             progress(k + 1)
@@ -223,6 +226,8 @@ def summarize(rows: list[Row]) -> dict[str, Any]:
         "refusals": len(refusals),
         "refusals_correct": sum(r.correct for r in refusals) / len(refusals) if refusals else None,
         "false_refusals": sum(r.refused and not r.expected_refusal for r in rows),
+        "declined": sum(r.declined for r in rows),
+        "declined_wrongly": sum(r.declined and not r.expected_refusal and not r.plan_ok for r in rows),
         "wrong_but_grounded": sum(r.grounded and not r.correct for r in rows),
         "rule_fallbacks": sum(r.planned_by == "rules" for r in rows),
         "latency_p50_s": float(np.percentile(seconds, 50)),
@@ -246,24 +251,32 @@ def markdown(report: dict[str, Any]) -> str:
              "any of the four languages), or refuses when the reference is a refusal. *Wrong but grounded*: an "
              "answer marked `grounded` that is not right. `oracle` plans with the expected calls themselves: it "
              "measures the writer and the guard, not planning, and is right by construction of the reference.", "",
-             "| planner | split | questions | tool calls right | answers right | refusals right | wrong but "
-             "grounded | rule fallbacks | p50 s | p99 s |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "Set `b` (`lcmesh/bench/data/chat_questions_b.jsonl`, all test) was written for issue 24 by an author "
+             "who had seen neither the first set nor the planner's generator, with tools the first set did not "
+             "have (energy over a window, setpoint gaps, where and when, top-N blade groups, another controller on "
+             "the twin, the weather). *Declined*: the reply says the question asks for something the results do "
+             "not give and offers them as what it can give instead; never grounded, never counted right unless "
+             "the question is one to refuse.", "",
+             "| planner | part | questions | tool calls right | answers right | refusals right | wrong but "
+             "grounded | declined | rule plans | p50 s | p99 s |", "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for planner, splits in report["planners"].items():
         for split, s in splits.items():
             refusals = "-" if s["refusals_correct"] is None else f"{s['refusals_correct']:.0%}"
             lines.append(f"| {planner} | {split} | {s['questions']} | {s['plan_accuracy']:.1%} | {s['correct']:.1%} | "
-                         f"{refusals} | {s['wrong_but_grounded']} | {s['rule_fallbacks']} | "
+                         f"{refusals} | {s['wrong_but_grounded']} | {s.get('declined', '-')} | {s['rule_fallbacks']} | "
                          f"{s['latency_p50_s']:.2f} | {s['latency_p99_s']:.2f} |")  # fmt: skip
-    test = report["planners"].get("llm", {}).get("test")
-    if test:
-        lines += ["", "| target (local LLM planner, test split) | measured | met |", "|---|---|---|",
+    for part in ("test", "b-test"):
+        test = report["planners"].get("llm", {}).get(part)
+        if not test:
+            continue
+        lines += ["", f"| target (local LLM planner, {part}) | measured | met |", "|---|---|---|",
                   f"| answers right >= {TARGETS['correct']:.0%} | {test['correct']:.1%} | "
                   f"{'yes' if test['correct'] >= TARGETS['correct'] else 'no'} |",
                   f"| wrong but grounded = 0 | {test['wrong_but_grounded']} | "
                   f"{'yes' if test['wrong_but_grounded'] == 0 else 'no'} |",
                   f"| p99 <= {TARGETS['latency_p99_s']:g} s per answer on 2 cores | {test['latency_p99_s']:.2f} s | "
                   f"{'yes' if test['latency_p99_s'] <= TARGETS['latency_p99_s'] else 'no'} |"]  # fmt: skip
-        lines += ["", "Test split, answers right by tag (local LLM planner): "
+        lines += ["", f"{part}, answers right by tag (local LLM planner): "
                   + ", ".join(f"{t} {v:.0%}" for t, v in test["by_tag"].items()) + "."]
     lines += ["", f"Machine: {m.get('cpu', '?')}, {m.get('logical_cpus', '?')} logical CPUs; commit "
               f"{m.get('commit', '?')}, {m.get('date', '?')}."]

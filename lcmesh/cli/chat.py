@@ -19,6 +19,8 @@ def bench_chat(
     planners: Annotated[str, typer.Option(help="comma list of llm, rules, openai, oracle (the expected calls)")] = \
         "llm,rules,oracle",
     site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
+    questions: Annotated[str, typer.Option(help="question sets: a (the first, dev and test), b (the outside "
+                                           "author's, test only) or a,b")] = "a,b",
     live: Annotated[int, typer.Option(help="instead: start the demo mesh and ask this many test questions through "
                                       "its REST API; who planned each answer and its latency", min=0)] = 0,
     controller: Annotated[Optional[str], typer.Option(help="--live: the demo's controller (default: the demo's)")] = None,
@@ -40,6 +42,10 @@ def bench_chat(
     if split not in ("test", "dev", "all"):
         fail(f"--split must be test, dev or all, not {split!r}")
     splits = ["dev", "test"] if split == "all" else [split]
+    sets = [q.strip() for q in questions.split(",") if q.strip()]
+    if not sets or any(q not in chat.QUESTION_SETS for q in sets):
+        fail(f"--questions must be a comma list of {', '.join(chat.QUESTION_SETS)}, not {questions!r}")
+    parts = [(qs, sp) for qs in sets for sp in splits if qs == "a" or sp == "test"]  # set b is all test
     with console.status("recording (or reusing) the bench site"):
         site = ensure_site(models_dir().parent / "chat-sites", minutes=site_minutes)
     sources, run_tool = chat.site_runner(site)
@@ -53,8 +59,9 @@ def bench_chat(
     for name in names:
         planner = None if name == "oracle" else make_planner(name)
         report["planners"][name] = {}
-        for part in splits:
-            questions = chat.load_questions(part)
+        for question_set, split_name in parts:
+            part = split_name if question_set == "a" else f"{question_set}-{split_name}"
+            questions = chat.load_questions(split_name, question_set)
             engine = chat.bench_engine(sources, planner or chat.OraclePlanner(questions), run_tool)
             if planner is None:  # the ceiling: the expected calls exactly, no second opinion from the rules
                 engine.second_opinion = lambda message, plan: plan

@@ -316,6 +316,20 @@ class HistoryReader:
                           "AND (step - ?) % ? = 0 ORDER BY step LIMIT ?",
                           (run_id, start_step, end, start_step, every, limit))  # fmt: skip
 
+    def payload_states(
+        self, start_step: int = 0, end_step: int | None = None, run_id: str | None = None, every: int = 1,
+        limit: int = 500,
+    ) -> list[PlantState]:  # fmt: skip
+        """Plant states with their full payloads in [start_step, end_step], every `every`-th step, oldest first."""
+        if every < 1 or limit < 1:
+            raise ValueError("`every` and `limit` must be >= 1")
+        run_id = run_id or self.latest_run_id()
+        end = end_step if end_step is not None else 2**62
+        rows = self._rows("SELECT payload FROM plant_states WHERE run_id = ? AND step BETWEEN ? AND ? AND payload IS "
+                          "NOT NULL AND (step - ?) % ? = 0 ORDER BY step LIMIT ?",
+                          (run_id, start_step, end, start_step, every, limit))  # fmt: skip
+        return [PlantState.model_validate_json(r["payload"]) for r in rows]
+
     def decisions(self, limit: int = 50, since_step: int | None = None, run_id: str | None = None) -> list[dict]:
         """Applied actions newest first, with source, clamps, fallback and the explanation text if any."""
         run_id = run_id or self.latest_run_id()

@@ -9,36 +9,24 @@ from importlib import resources
 
 import pytest
 
-from lcmesh.mesh.tools import plant_data as pd
+from lcmesh.mesh.agents.ui.planner import PLANNER_TOOLS as TOOLS
 
-TOOLS = {
-    "plant_state": pd.StateRequest,
-    "overview": pd.OverviewRequest,
-    "history_stat": pd.HistoryRequest,
-    "rank": pd.RankRequest,
-    "compare": pd.CompareRequest,
-    "band_count": pd.BandRequest,
-    "energy_balance": pd.EnergyRequest,
-    "alerts": pd.AlertsRequest,
-    "decision": pd.DecisionRequest,
-    "controller": pd.ControllerRequest,
-    "agents": pd.AgentsRequest,
-    "propose_change": pd.ProposeRequest,
-    "whatif_setpoint": pd.WhatIfSetpointRequest,
-}
 TAGS = {
     "paraphrase", "typo", "multi", "lang", "refusal", "injection", "command", "whatif", "history", "rank", "compare",
     "band", "energy", "alerts", "decision", "controller", "agents", "state", "overview", "out_of_range", "units",
 }  # fmt: skip
+B_TAGS = TAGS - {"band", "decision", "alerts", "controller", "agents", "overview"} | {
+    "why", "gap", "where", "when", "weather"}  # the outside author's set b (issue 24): test only
 KEYS = {"id", "split", "question", "lang", "tags", "calls", "refuse", "note"}
 
 
-def _rows() -> list[dict]:
-    text = resources.files("lcmesh.bench.data").joinpath("chat_questions.jsonl").read_text(encoding="utf-8")
+def _rows(name: str = "chat_questions.jsonl") -> list[dict]:
+    text = resources.files("lcmesh.bench.data").joinpath(name).read_text(encoding="utf-8")
     return [json.loads(line) for line in text.splitlines() if line.strip()]
 
 
 ROWS = _rows()
+B_ROWS = _rows("chat_questions_b.jsonl")
 
 
 def test_size_splits_and_unique_text():
@@ -55,11 +43,22 @@ def test_every_tag_in_both_splits():
         assert present == TAGS, (split, TAGS - present)
 
 
-@pytest.mark.parametrize("row", ROWS, ids=[r["id"] for r in ROWS])
+def test_set_b_is_its_own_test_set():
+    assert len(B_ROWS) >= 150 and {r["split"] for r in B_ROWS} == {"test"}
+    assert len({r["id"] for r in B_ROWS}) == len(B_ROWS)
+    same = {r["question"].strip().lower() for r in B_ROWS} & {r["question"].strip().lower() for r in ROWS}
+    assert len(same) <= 2, same  # written apart: a short common question ("¿hay alarmas activas?") may repeat
+    langs = Counter(r["lang"] for r in B_ROWS)
+    assert min(langs["es"], langs["de"], langs["fr"]) >= 25, langs
+    assert B_TAGS - {"band"} <= {t for r in B_ROWS for t in r["tags"]}
+
+
+@pytest.mark.parametrize("row", ROWS + B_ROWS, ids=[r["id"] for r in ROWS + B_ROWS])
 def test_row_is_well_formed(row):
+    tags = B_TAGS | TAGS if row["id"].startswith("b") else TAGS
     assert set(row) == KEYS
     assert row["split"] in ("dev", "test") and row["lang"] in ("en", "es", "de", "fr")
-    assert row["tags"] and set(row["tags"]) <= TAGS and len(set(row["tags"])) == len(row["tags"])
+    assert row["tags"] and set(row["tags"]) <= tags and len(set(row["tags"])) == len(row["tags"])
     assert (row["lang"] != "en") == ("lang" in row["tags"])
     assert isinstance(row["refuse"], bool) and ("refusal" in row["tags"]) == row["refuse"]
     if row["refuse"]:  # a refusal is an honest "I can't tell that from here": no call

@@ -214,6 +214,9 @@ class RankRequest(_Model):
     quantity: QuantityKey = "blade_temp"
     order: Literal["highest", "lowest"] = "highest"
     top: int = Field(3, ge=1, le=100)
+    level: Literal["branch", "cabinet", "tower"] | None = Field(
+        None, description="what to rank: branches (blade groups), cabinets or towers; default cabinets for cabinet "
+                          "and branch quantities, towers for tower ones")  # fmt: skip
 
 
 class RankResponse(_Model):
@@ -615,7 +618,10 @@ def rank(req: RankRequest, ctx: Any) -> RankResponse:
     q = QUANTITIES[req.quantity]
     if q.per == "plant":
         raise ToolInputError(f"the {q.label} is one plant-wide value; there is nothing to rank")
-    values = cabinet_values(q, state, system)
+    level = req.level or ("tower" if q.per == "tower" else "cabinet")
+    if (level == "tower") != (q.per == "tower") or (level == "branch" and q.per != "branch"):
+        raise ToolInputError(f"the {q.label} is per {q.per}; it cannot be ranked by {level}")
+    values = entity_values(q, state, system) if level == "branch" else cabinet_values(q, state, system)
     ordered = sorted(values, key=lambda v: v.value, reverse=req.order == "highest")
     return RankResponse(quantity=q.key, label=q.label, unit=q.unit, order=req.order, step=state.step,
                         ranked=ordered[: req.top], count=len(values), plant=_fold(q, values),
@@ -889,7 +895,7 @@ DATA_TOOLS: list[tuple[str, str, type[BaseModel], type[BaseModel], Callable]] = 
      OverviewRequest, OverviewResponse, overview),
     ("history_stat", "A plant-wide quantity over the last minutes: mean, max, min, change", HistoryRequest,
      HistoryResponse, history_stat),
-    ("rank", "Cabinets or towers ordered by a quantity (hottest, highest power ...)", RankRequest, RankResponse,
+    ("rank", "Branches (blade groups), cabinets or towers ordered by a quantity (hottest, highest power ...)", RankRequest, RankResponse,
      rank),
     ("compare", "A quantity for two or more cabinets or towers side by side", CompareRequest, CompareResponse,
      compare),
@@ -908,4 +914,4 @@ DATA_TOOLS: list[tuple[str, str, type[BaseModel], type[BaseModel], Callable]] = 
     ("whatif_setpoint", "What a supply, dp or tower setpoint change would do over the next minutes, on the live "
      "twin", WhatIfSetpointRequest, WhatIfSetpointResponse, whatif_setpoint),
 ]  # fmt: skip
-PLANT_TOOLS = ("whatif_setpoint",)  # need the live twin (ToolContext.plant): the Sensor serves them
+PLANT_TOOLS = ("whatif_setpoint", "whatif_controller")  # need the live twin (ToolContext.plant): the Sensor serves them

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from lcmesh.mesh.tools import plant_data, stats, thermo
+from lcmesh.mesh.tools import operations, plant_data, stats, thermo
 from lcmesh.twin.system import SystemDescription
 
 if TYPE_CHECKING:  # the twin (and fmpy) load only where a tool runs it
@@ -341,11 +341,12 @@ TOOLS: dict[str, ToolSpec] = {
                  "the live twin (restored afterwards)", WhatIfRequest, WhatIfResponse, _whatif),
     )
 }  # fmt: skip
-TOOLS.update({name: ToolSpec(name, description, request, response, call)
-              for name, description, request, response, call in plant_data.DATA_TOOLS})  # fmt: skip
+TOOLS.update({name: ToolSpec(name, description, request, response, call) for name, description, request, response, call
+              in (*plant_data.DATA_TOOLS, *operations.OPERATION_TOOLS)})  # fmt: skip
 
 
-DATA_TOOLS = tuple(name for name, *_ in plant_data.DATA_TOOLS if name not in plant_data.PLANT_TOOLS)
+DATA_TOOLS = tuple(name for name, *_ in (*plant_data.DATA_TOOLS, *operations.OPERATION_TOOLS)
+                   if name not in plant_data.PLANT_TOOLS)  # fmt: skip
 
 
 def served_tools(*, data: bool) -> list[str]:

@@ -174,7 +174,10 @@ def test_a_model_plan_that_leaves_out_what_the_rules_cover_is_replaced_and_count
     assert reply["refused"] and not reply["grounded"]
 
 
-def test_a_plan_that_misses_a_named_cabinet_is_sent_but_not_grounded(engine):
+def test_a_plan_that_misses_a_named_cabinet_is_declined_not_answered(engine):
     reply = engine.answer("supply temperature of cabinet 3", Plan([ToolCall("plant_state", {"quantity": "supply_temp",
                                                                                             "cabinet": 2})], "test"))
     assert not reply["grounded"] and "cabinet 3" in reply["plan_note"]
+    assert reply["declined"] and reply["missing"] == ["cabinet 3"]
+    assert reply["answer"].startswith("I can't answer that as asked: the question asks for cabinet 3")
+    assert "not an answer to your question" in reply["answer"]

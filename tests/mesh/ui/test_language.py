@@ -132,6 +132,11 @@ CALLS = [
     ("propose_change", {"setpoint": "dp", "value": 99.0}), ("propose_change", {"setpoint": "lw", "change": -1.0}),
     ("propose_change", {"controller": "g36"}), ("whatif_setpoint", {"setpoint": "supply", "change": 1.0}),
     ("whatif_setpoint", {"setpoint": "dp", "change": -2.0, "unit": "psi", "cabinet": 4}),
+    ("energy_used", {}), ("energy_used", {"what": "pumps", "minutes": 10}), ("energy_used", {"what": "it"}),
+    ("tracking_gap", {}), ("tracking_gap", {"level": "tower"}), ("tracking_gap", {"cabinet": 2}),
+    ("peak", {}), ("peak", {"quantity": "approach", "extreme": "min", "minutes": 10}), ("peak", {"quantity": "pue"}),
+    ("rank", {"level": "branch", "top": 4}), ("weather_effect", {}), ("weather_effect", {"minutes": 5}),
+    ("whatif_controller", {"controller": "g36", "minutes": 5}), ("compare", {"quantity": "fan_speed", "towers": [1, 2]}),
 ]  # fmt: skip
 
 
@@ -153,7 +158,9 @@ def _branches(results: dict) -> list[tuple[str, dict, dict]]:
             bent("agents", {}, alive=6, down=["maintenance"], advice=["restart the maintenance agent"]),
             bent("controller", {}, fallback=True, fallback_reason="no action for 2 steps", mode=None, since=None),
             bent("overview", {}, pue=None, controller=None),
-            bent("history_stat", {"quantity": "tower_power", "stat": "change", "minutes": 10}, change=0.0)]  # fmt: skip
+            bent("history_stat", {"quantity": "tower_power", "stat": "change", "minutes": 10}, change=0.0),
+            bent("weather_effect", {}, fan_kw_per_k_wet_bulb=None, wet_bulb_change_k=0.0),
+            bent("whatif_controller", {"controller": "g36", "minutes": 5}, cooling_kwh_saved=-0.4)]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

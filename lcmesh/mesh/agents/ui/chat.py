@@ -52,9 +52,23 @@ class ToolRunner:
         self.context = registry.ToolContext(system=sources.system, data=sources, plant=plant)
 
     def __call__(self, call: ToolCall) -> registry.ToolResult:
+        if call.tool == "whatif_controller" and call.args.get("current") is None:  # the Sensor does not know it
+            current = self._controller_now()
+            call = ToolCall(call.tool, {**call.args, "current": current}) if current else call
         if call.tool in PLANT_TOOLS and self.context.plant is None:
             return self._remote(call)
         return registry.invoke(call.tool, call.args, self.context)
+
+    def _controller_now(self) -> str | None:
+        """The configured controller (else the one of the last applied action), for a controller what-if."""
+        try:
+            doc = self.sources.config()
+            applied = self.sources.applied()
+        except Exception:  # no configuration yet: the tool says what is missing
+            return None
+        if doc is not None:
+            return doc.config.controller
+        return getattr(applied, "source_controller", None)
 
     def _remote(self, call: ToolCall) -> registry.ToolResult:
         gateway = self.sources.gateway
@@ -103,21 +117,23 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"\bpue\b", {"pue"}),
     (r"\bapproach|aproximaci[oó]n|ann[aä]herung|\bapproche", {"approach"}),
     (r"wet[- ]?bulb|bulbo h[uú]medo|feuchtkugel|bulbe humide", {"wet_bulb"}),
-    (r"\bvalves?\b|v[aá]lvula|\bventil|\bvanne", {"valve"}),
+    (r"\bvalves?\b|v[aá]lvula|\bventil(e|s)?\b|\bventil(anteil|stellung)|\bvanne", {"valve"}),
     (r"\bdp\b|differential pressure|presi[oó]n|druck|pression", {"dp", "dp_setpoint"}),
     (r"\bflows?\b|caudal|durchfluss|d[ée]bit", {"flow"}),
     (r"\breturn\b|retorno|r[uü]cklauf|\bretour", {"return_temp", "htw_return_temp"}),
-    (r"\balert|\balarm|\bfaults?\b|st[oö]rung|warnung|alerte", {"alerts"}),
-    (r"\bagents?\b|\bservices?\b|agentes?\b|dienste", {"agents"}),
+    (r"\balert|\balarm|\bfaults?\b|st[oö]rung|warnung|alerte|\bflag", {"alerts"}),
+    (r"(?<!maintenance )\bagents?\b|\bservices?\b|agentes?\b|dienste", {"agents"}),
     (r"controller|\bpolicy\b|\bregler|controlador|contr[oô]leur", {"controller"}),
     (r"reject|rechaz|abgegeben|\brejet", {"heat_rejected"}),
     (r"leaving[- ]water|\blw\b|\bbasin\b", {"leaving_water", "lw_setpoint", "lw"}),
+    (r"(?<!hot[- ])(?<!hot)\bwater\b", {"leaving_water", "lw_setpoint", "lw", "htw_supply_temp", "htw_return_temp"}),
     (r"\b(last|past|previous)\s+(\d+\s*)?(min|mins|minutes?|hours?|h|hrs?|days?)\b|\bago\b|\bhace\b|\bvor\s+\d"
      r"|\bil y a\b|[uú]ltima hora|[uú]ltimos \d+|letzten (stunde|\d+)|derni[eè]re heure|derni[eè]res \d+", {"history"}),
     (r"\bband\b|\bbanda\b|\bbande\b|compliance", {"in_band"}),
     (r"\bsu[p]{1,2}ly|impulsi[oó]n|vorlauf|\bd[ée]part\b", {"supply", "supply_temp", "supply_setpoint"}),
     (r"\b(towers?|torres?|t[uü]rme?|tours?|ct)\b(?!\s*#?\s*\d)", {"tower", "leaving_water", "lw_setpoint", "lw",
-                                                                     "approach", "fan_speed", "tower_power"}),
+                                                                     "approach", "fan_speed", "tower_power",
+                                                                     "heat_rejected"}),
     (r"hottest|warmest|coolest|coldest|\bhighest|\blowest|m[aá]s (caliente|fr[ií]o|alt[oa]|baj[oa])|hei(ß|ss)est"
      r"|k[aä]ltest|h[oö]chst|niedrigst|plus (chaud|froid|[ée]lev[ée]|bas)", {"ranking"}),
     (r"coolest|coldest|\blowest|\bleast\b|m[aá]s fr[ií]o|m[aá]s baj[oa]|k[aä]ltest|niedrigst|plus froid|plus bas",
@@ -125,7 +141,24 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"\bmanual\b|\bmanuel\b|\bmanuell\b|\bauto(matic)?\s+mode|\bmodo\b|\bmodus\b", {"mode"}),
     (r"what (if|would happen)|\bsuppose\b|\bsimulat|qu[eé] pasar[ií]a|was w[aä]re|was passiert,? wenn"
      r"|que se passerait|\bet si\b", {"whatif"}),
+    # the kind of quantity: energy (kWh over a window) is not power now
+    (r"\b(energ(y|[ií]a|ie)|[ée]nergie)\b(?!\s*(balance|efficiency|bilanz|bilan|-?effizienz))|\bkwh\b|\bconsum"
+     r"|\bverbrauch|\bconsomm", {"energy"}),
+    # "where" and "when" ask for a place and a time, not only a value
+    (r"\bwhere\b|\bd[oó]nde\b|\bwo\b|\bwhich (cabinet|branch|tower|blade|cdu)|(?<!\w)où(?!\w)", {"where"}),
+    (r"\bwhen\b|what time|\bcu[aá]ndo\b|qu[eé] hora|\bwann\b|wie viel uhr|\bquand\b|quelle heure", {"when"}),
+    (r"how many|\bcu[aá]nt[oa]s\b|wie viele|\bcombien\b", {"count"}),
+    (r"\bweather\b|\bclima\b|\bwetter\b|\bm[ée]t[ée]o\b", {"weather"}),
 )]  # fmt: skip
+# Two words together name what the answer must be: a setpoint-tracking gap, blade groups ranked (not cabinets).
+PAIRED_CONCEPTS: list[tuple[re.Pattern, re.Pattern, frozenset[str]]] = [
+    (re.compile(p, re.IGNORECASE), re.compile(q, re.IGNORECASE), frozenset(c)) for p, q, c in (
+        (r"\bgaps?\b|deviat|\boff\b|\bfar\b|differ|\btrack|abweich|[ée]cart|desviac|unterschied|distance",
+         r"set[- ]?points?|consigna|sollwert|consigne", {"gap"}),
+        (r"blade[- ]?groups|\bbranches\b|grupos de blades|\bramas\b|blade-gruppen|\bzweige\b|groupes de lames",
+         r"hottest|warmest|coolest|coldest|highest|lowest|\btop\b|\blist\b|rank|m[aá]s (caliente|fr[ií])|"
+         r"hei(ß|ss)est|k[aä]ltest|plus (chaud|froid)", {"branch_level"}),
+    )]  # fmt: skip
 TOOL_COVERS: dict[str, frozenset[str]] = {k: frozenset(v) for k, v in {
     "energy_balance": {"pue", "it_power", "heat_rejected", "cdu_heat", "cooling_power", "tower_power", "pump_power"},
     "overview": {"pue", "blade_temp", "in_band", "it_power", "tower_power", "pump_power", "wet_bulb", "controller",
@@ -137,7 +170,20 @@ TOOL_COVERS: dict[str, frozenset[str]] = {k: frozenset(v) for k, v in {
     "history_stat": {"history"},
     "whatif_setpoint": {"whatif", "blade_temp", "in_band", "tower_power", "pump_power", "cooling_power"},
     "propose_change": {"controller"},
+    "energy_used": {"energy", "history", "pump_power", "tower_power", "cooling_power", "it_power", "heat_rejected"},
+    "tracking_gap": {"gap", "supply", "supply_temp", "supply_setpoint", "leaving_water", "lw_setpoint", "lw",
+                     "where", "ranking", "tower"},
+    "peak": {"history", "where", "when", "ranking", "lowest"},
+    "weather_effect": {"weather", "wet_bulb", "approach", "leaving_water", "fan_speed", "tower_power", "tower",
+                       "history"},
+    "whatif_controller": {"whatif", "controller", "energy", "cooling_power", "blade_temp", "in_band"},
 }.items()}  # fmt: skip
+_SETPOINT_WORD = re.compile(r"set[- ]?points?|\bsp\b|consignas?|sollwerte?s?|consignes?", re.IGNORECASE)
+_MEASURED_WORD = re.compile(r"\bmeasured|\bactual\b|gemessen|medid[oa]|mesur[ée]|\breal\b", re.IGNORECASE)
+# Concepts a tool covers only with some of its arguments, or that every listing of entities covers.
+WHERE_TOOLS = {"rank", "compare", "band_count", "overview", "plant_state", "alerts", "decision"}
+WHEN_TOOLS = {"decision", "controller", "alerts"}
+COUNT_TOOLS = {"band_count", "agents", "alerts", "rank"}
 _SETPOINT_CONCEPTS = {"supply": {"supply", "supply_setpoint", "supply_temp"}, "dp": {"dp", "dp_setpoint"},
                       "lw": {"lw", "lw_setpoint", "leaving_water"}}  # fmt: skip
 
@@ -146,7 +192,8 @@ _SETPOINT_CONCEPTS = {"supply": {"supply", "supply_setpoint", "supply_temp"}, "d
 OUT_OF_SCOPE = re.compile(
     r"\b(price|prices|cost|costs|bill|tariff|precio|cuesta|cuestan|kostet|kosten|preis|prix|co[uû]te?|jobs?|users?"
     r"|trabajos?|usuarios?|benutzer|utilisateurs?|forecast|pron[oó]stico|vorhersage|pr[ée]vision|tomorrow|ma[nñ]ana"
-    r"|morgen|demain|next week|joke|chiste|witz|blague|single|married|love|weather in|other sites?|password)\b",
+    r"|morgen|demain|next week|joke|chiste|witz|blague|single|married|love|weather in|other sites?|password"
+    r"|conductivity|turbidity|viscosity|corrosion|glycol|humidity|leitf[aä]higkeit|conductividad|conductivit[ée])\b",
     re.IGNORECASE)  # fmt: skip
 # An order, not a question: only a proposal answers it (chat never acts; the operator confirms).
 COMMAND = re.compile(
@@ -190,7 +237,7 @@ def _question_numbers(question: str) -> list[tuple[str, set[float]]]:
     entity_spans = [m.span() for m in semantic.ENTITY.finditer(question)]
     hours = {m.start(1): float(m.group(1)) * 60.0 for m in _HOURS.finditer(question)}
     out = []
-    for m in re.finditer(r"(?<![\w.])\d+(?:\.\d+)?", question):
+    for m in re.finditer(r"(?<![\w.:])\d+(?:\.\d+)?(?!\s*(?:am|pm|a\.m\.|p\.m\.)\b|:\d)", question):
         if any(a <= m.start() < b for a, b in entity_spans):
             continue
         value = float(m.group(0))
@@ -207,6 +254,9 @@ def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
         concepts |= TOOL_COVERS.get(call.tool, frozenset())
         if args.get("quantity"):
             concepts.add(args["quantity"])
+            concepts |= {"supply"} if args["quantity"].startswith("htw_supply") else set()
+        if call.tool == "history_stat" and args.get("stat") in ("min", "max"):
+            concepts |= {"ranking", "lowest"} if args["stat"] == "min" else {"ranking"}
         if args.get("setpoint"):
             concepts |= _SETPOINT_CONCEPTS.get(args["setpoint"], set())
         if args.get("action"):
@@ -215,6 +265,14 @@ def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
             concepts.add("lowest")
         if args.get("mode"):
             concepts.add("mode")
+        if call.tool in WHERE_TOOLS:
+            concepts.add("where")
+        if call.tool in WHEN_TOOLS:
+            concepts.add("when")
+        if call.tool in COUNT_TOOLS:
+            concepts.add("count")
+        if call.tool == "rank" and args.get("level") == "branch" or call.tool in ("band_count", "peak"):
+            concepts.add("branch_level")
         for key in ("cabinet", "tower", "branch"):
             if args.get(key) is not None:
                 entities.add(f"{key} {args[key]}")
@@ -223,9 +281,15 @@ def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
     return concepts, entities
 
 
-def uncovered(question: str, calls: list[ToolCall]) -> list[str]:
-    """What the question names that the plan does not address: entities ("cabinet 3") and concepts ("pue")."""
+def uncovered(question: str, calls: list[ToolCall], facts: list[ChatFact] = ()) -> list[str]:
+    """What the question names that the plan does not address: entities ("cabinet 3") and concepts ("pue").
+
+    With the answer's `facts`, an entity is addressed too when a fact gives its own value (a listing of every
+    cabinet answers "cabinet 2's supply")."""
     concepts, entities = _covered(calls)
+    for f in facts:
+        if f.entity and f.entity != "plant" and f.quantity not in (None, "number"):
+            entities.add(f.entity)
     missing = []
     for m in semantic.ENTITY.finditer(question):
         name = semantic.canonical_entity(*m.groups())
@@ -234,6 +298,16 @@ def uncovered(question: str, calls: list[ToolCall]) -> list[str]:
             missing.append(name)
     for pattern, wanted in QUESTION_CONCEPTS:
         if pattern.search(question) and not wanted & concepts:
+            missing.append(sorted(wanted)[0])
+    if _SETPOINT_WORD.search(question):  # a setpoint, and with "measured" both: values of the setpoints themselves
+        setpoints = {"supply_setpoint", "dp_setpoint", "lw_setpoint"} & concepts
+        acts = {"decision", "propose_change", "whatif_setpoint", "tracking_gap", "controller"} & {c.tool for c in calls}
+        if not setpoints and not acts:
+            missing.append("setpoint")
+        elif _MEASURED_WORD.search(question) and not acts and not concepts & {"supply_temp", "dp", "leaving_water"}:
+            missing.append("measured")
+    for first, second, wanted in PAIRED_CONCEPTS:
+        if first.search(question) and second.search(question) and not wanted & concepts:
             missing.append(sorted(wanted)[0])
     if calls and OUT_OF_SCOPE.search(question):
         missing.append(f"“{OUT_OF_SCOPE.search(question).group(0)}” (no tool knows it)")
@@ -331,11 +405,16 @@ class ChatEngine:
         draft = " ".join(parts)
         facts = book.listed()
         problems = check_answer(draft, facts)
-        missing = uncovered(message, calls)
-        if missing:  # a true answer to another question is not grounded
+        missing = uncovered(message, calls, facts)
+        if missing:  # a true answer to another question is not an answer: say so, and offer what was found
             self.uncovered += 1
             plan = Plan(plan.calls, plan.by, "; ".join(x for x in (plan.note, "the plan may not answer what the "
                         f"question names: {', '.join(missing)}") if x), plan.raw)  # fmt: skip
+            if problems:
+                self.ungrounded += 1
+                log.error("chat draft for %r fails the semantic guard: %s", message, problems)
+            return self._reply(decline(lang, missing, draft), facts, plan, proposed=proposed, grounded=False,
+                               problems=problems, lang=lang, declined=missing)  # fmt: skip
         if problems:
             self.ungrounded += 1
             log.error("chat draft for %r fails the semantic guard: %s", message, problems)
@@ -346,7 +425,7 @@ class ChatEngine:
             if rephrased_problems:
                 self.rejected_phrasings += 1
                 text, by, note = draft, "template", f"rephrasing refused: {rephrased_problems[0].detail}"
-        return self._reply(text, facts, plan, proposed=proposed, grounded=not (problems or failed or missing),
+        return self._reply(text, facts, plan, proposed=proposed, grounded=not (problems or failed),
                            phrased_by=by, note=note, problems=problems, lang=lang)  # fmt: skip
 
     def _whatif_proposal(self, args: dict) -> dict | None:
@@ -358,7 +437,7 @@ class ChatEngine:
 
     def _reply(self, text: str, facts: list[ChatFact], plan: Plan, *, refused: bool = False, grounded: bool,
                proposed: dict | None = None, phrased_by: str = "template", note: str | None = None,
-               problems: list | None = None, lang: str = "en") -> dict[str, Any]:  # fmt: skip
+               problems: list | None = None, lang: str = "en", declined: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
         return {
             "answer": text,
             "facts": [f.model_dump() for f in facts],
@@ -371,9 +450,32 @@ class ChatEngine:
             "planned_by": plan.by,
             "plan_note": plan.note,
             "refused": refused,
+            "declined": bool(declined),  # the question asks for something this answer does not give
+            "missing": list(declined or []),
             "problems": [p.__dict__ for p in problems or []],
             "lang": lang,
         }
+
+
+MISSING_WORDS: dict[str, dict[str, str]] = {
+    "energy": {"en": "energy over a time (kWh)", "es": "energía en un periodo (kWh)", "de": "Energie über eine Zeit "
+               "(kWh)", "fr": "l'énergie sur une durée (kWh)"},
+    "where": {"en": "where", "es": "dónde", "de": "wo", "fr": "où"},
+    "when": {"en": "when", "es": "cuándo", "de": "wann", "fr": "quand"},
+    "count": {"en": "how many", "es": "cuántos", "de": "wie viele", "fr": "combien"},
+    "gap": {"en": "the gap to the setpoint", "es": "la diferencia con la consigna", "de": "die Abweichung vom "
+            "Sollwert", "fr": "l'écart à la consigne"},
+    "branch_level": {"en": "blade groups (not cabinets)", "es": "grupos de blades (no gabinetes)",
+                     "de": "Blade-Gruppen (nicht Schränke)", "fr": "groupes de lames (pas armoires)"},
+    "history": {"en": "a time window", "es": "un periodo de tiempo", "de": "einen Zeitraum", "fr": "une période"},
+    "weather": {"en": "the weather", "es": "el clima", "de": "das Wetter", "fr": "la météo"},
+}  # fmt: skip
+
+
+def decline(lang: str, missing: list[str], draft: str) -> str:
+    """The reply when the results do not answer what was asked: what is missing, then what can be given instead."""
+    words = ", ".join(MISSING_WORDS.get(m, {}).get(lang, m.replace("_", " ")) for m in missing)
+    return phrase(lang, "decline", missing=words) + " " + phrase(lang, "decline.instead", draft=draft)
 
 
 def _proposal(result: dict) -> dict | None:

@@ -17,9 +17,9 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict
 
 Source = Literal["state", "history", "decision", "whatif", "alert", "config", "agents", "question", "system", "tool"]
-DECIMALS = {"degC": 1, "K": 1, "kW": 1, "W": 0, "psi": 1, "kg/s": 2, "fraction": 2, "%": 1, "min": 0, "h": 1, "s": 0,
+DECIMALS = {"degC": 1, "K": 1, "kW": 1, "kWh": 1, "W": 0, "psi": 1, "kg/s": 2, "fraction": 2, "%": 1, "min": 0, "h": 1, "s": 0,
             "pue": 3}
-SUFFIX = {"degC": " °C", "K": " K", "kW": " kW", "W": " W", "psi": " psi", "kg/s": " kg/s", "%": " %", "min": " min",
+SUFFIX = {"degC": " °C", "K": " K", "kW": " kW", "kWh": " kWh", "W": " W", "psi": " psi", "kg/s": " kg/s", "%": " %", "min": " min",
           "h": " h", "s": " s"}  # fmt: skip
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
 

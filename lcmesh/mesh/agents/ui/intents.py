@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 from lcmesh.twin.system import PSI_TO_PA
 
-CONTROLLERS = ("g36", "tree", "ppo", "static", "llm")
+CONTROLLERS = ("g36", "tree", "ppo", "static", "llm", "rule", "readable")
 
 
 @dataclass(frozen=True)
@@ -155,7 +155,7 @@ _UNIT_S = {"h": 3600.0, "m": 60.0, "s": 1.0, "d": 86400.0}
 _INDEX = {name: re.compile(rf"\b{name}s?\s*(?:#|no\.?|number)?\s*(\d+)\b") for name in ("cabinet", "branch", "tower")}
 _CDU = re.compile(r"\b(?:cdu|rack|cab)s?\s*#?\s*(\d+)\b")
 _CT = re.compile(r"\bcts?\s*#?\s*(\d+)\b")
-_TOP = re.compile(r"\btop (\d+)\b|\bthe (\d+) (?:cabinet|cdu|rack|tower)s\b")
+_TOP = re.compile(r"\btop (\d+)\b|\bthe (\d+) (?:\w+ )?(?:cabinet|cdu|rack|tower|blade[- ]?group|branche)s\b")
 _AMOUNT = re.compile(r"(?<![\w.])([-+]?\d+(?:\.\d+)?)\s*(°\s*c\b|deg(?:rees?)?\s*c\b|degc\b|celsius\b|degrees?\b|"
                      r"k\b|kelvin\b|psi\b|kpa\b|pa\b|%|percent\b)?")  # fmt: skip
 _UP = re.compile(r"\b(rais(e|ed|es|ing)|increas(e|ed|es|ing)|higher|up|bump(ed)?|warmer|more|add)\b|\+")
@@ -194,6 +194,8 @@ class Intent:
     band_c: tuple[float, float] | None = None  # band: limits named in the question, degC
     top: int | None = None  # rank: how many ("the 2 cabinets with ...", "top 3")
     decision_id: str | None = None  # why: a decision named by its id
+    what: str | None = None  # energy: cooling, pumps, tower_fans, it, heat_rejected
+    level: str | None = None  # rank: branch (blade groups), cabinet or tower; gap: cabinet or tower
 
 
 def normalize(text: str) -> str:
@@ -277,10 +279,19 @@ def _all_indices(text: str, name: str) -> tuple[int, ...]:
     return tuple(found)
 
 
+_ONE_LIMIT = re.compile(r"\b(above|over|hotter than|warmer than|more than|below|under|colder than|cooler than|less than)"
+                        r"\s+([\d.]+)\s*(?:°\s*c|degc|c|degrees?)?\b")  # fmt: skip
+
+
 def _band_limits(text: str) -> tuple[float, float] | None:
     match = _BAND_LIMITS.search(text)
     if match is None:
-        return None
+        one = _ONE_LIMIT.search(text)  # "above 35 C": the band's high edge; "below 22 C": its low edge
+        if one is None:
+            return None
+        value = float(one.group(2))
+        high = one.group(1) in ("above", "over", "hotter than", "warmer than", "more than")
+        return (None, value) if high else (value, None)
     low, high = sorted((float(match.group(1)), float(match.group(2))))
     return low, high
 
@@ -291,9 +302,145 @@ def _stat(text: str) -> str | None:
     return min(found)[1] if found else None
 
 
+# --- the operator tools' questions, in English, Spanish, German and French (ops_intent) -------------------------------
+_OPS_CONTROLLER = re.compile(r"\b(compar|vs\.?|versus|against|instead|sav(e|es|ing)|better|worse|than|would|frente|"
+                             r"compar|en vez|ahorr|mejor|gegenüber|verglichen|statt|spar|besser|würde|plutôt|au lieu|"
+                             r"économ|mieux|par rapport)")  # fmt: skip
+_OPS_ENERGY = re.compile(r"\benerg(y|ía|ie)\b|\bénergie\b|\bkwh\b|\bconsum|\bverbrauch|\bconsomm")
+_OPS_NOT_ENERGY = re.compile(r"\bpue\b|balance|bilan|bilanz|effectiveness")
+_OPS_WHAT = (("pumps", r"\bpump|\bbomb|\bpumpe|\bpompe"), ("tower_fans", r"\bfans?\b|ventil|lüfter"),
+             ("heat_rejected", r"reject|rechaz|abgegeben|rejet"), ("it", r"\bit\b|\bti\b|\bit-|server|compute"))
+_OPS_GAP = re.compile(r"\bgaps?\b|deviat|\boff\b|\bfar\b|f[au]rthest|further|differ|track|abweich|écart|desviac|diferencia|unterschied"
+                      r"|distance|away from|lejos|entfernt|loin")  # fmt: skip
+_OPS_SETPOINT = re.compile(r"set[- ]?points?|\bsp\b|\btarget|consigna|sollwert|consigne|\bobjetivo|\bziel")
+_OPS_TOWER = re.compile(r"\btowers?\b|\bcts?\s*\d|\bct\b|\btorres?\b|\btürme?\b|\bturm|\btours?\b|leaving[- ]?water|"
+                        r"\blwt?\b|agua de salida|austrittswasser|eau de sortie")  # fmt: skip
+_OPS_WHERE_WHEN = re.compile(r"\bwhere\b|\bwhen\b|what time|\bdónde\b|\bcuándo\b|qué hora|\bwo\b|\bwann\b|wie viel uhr"
+                             r"|\boù\b|\bquand\b|quelle heure|\bwhich (cabinet|branch|tower|blade)")  # fmt: skip
+_OPS_EXTREME = re.compile(r"\bpeak|\bmax|\bhighest|\bhottest|\bwarmest|\bmin(imum)?\b|\blowest|\bcoolest|\bcoldest|pico"
+                          r"|máxim|mínim|más (alt|caliente|baj|frí)|spitze|höchst|maximal|minimal|niedrigst|heißest|"
+                          r"kältest|\bpic\b|maximum|plus (haut|chaud|bas|froid)")  # fmt: skip
+_OPS_LOW = re.compile(r"\bmin(imum)?\b|\blowest|\bcoolest|\bcoldest|mínim|más (baj|frí)|minimal|niedrigst|kältest|"
+                      r"plus (bas|froid)|\btrough")  # fmt: skip
+_OPS_PAST = re.compile(r"\b(last|past|previous|today|this (morning|shift))\b|últim|\bhoy\b|letzte|\bheute\b|derni|"
+                       r"aujourd|\bsince\b|\bdesde\b|\bseit\b|\bdepuis\b")  # fmt: skip
+_OPS_WEATHER = re.compile(r"\bweather\b|\bclima\b|\bel tiempo\b|\bwetter\b|\bmétéo\b|\bmeteo\b|\bwitterung|"
+                          r"(wet[- ]?bulb|bulbo|feuchtkugel|bulbe)\b.*\b(effect|affect|impact|influen|efecto|afecta|"
+                          r"wirkung|einfluss|auswirk|effet)|\b(effect|affect|impact|influen|efecto|afecta|wirkung|"
+                          r"einfluss|auswirk|effet)\w*\b.*(wet[- ]?bulb|bulbo|feuchtkugel|bulbe)")  # fmt: skip
+_OPS_CABINET = re.compile(r"\b(?:cabinet|cdu|rack|cab|gabinete|armario|schrank|armoire)s?\s*#?\s*(\d+)\b")
+_OPS_TOWER_N = re.compile(r"\b(?:tower|ct|torre|turm|tour)s?\s*#?\s*(\d+)\b")
+_OPS_BRANCHES = re.compile(r"blade[- ]?groups|\bbranches\b|\bblades\b|grupos de blades|\bramas\b|blade-gruppen|"
+                           r"\bzweige\b|groupes de lames|\bbgs\b")  # fmt: skip
+_OPS_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*(min|mins|minutes?|minutos?|minuten?|h|hrs?|hours?|horas?|stunden?|heures?)\b")
+_OPS_HOUR = re.compile(r"\b(last|past|previous) hour\b|última hora|letzten stunde|dernière heure")
+_OPS_LAST_N_HOURS = re.compile(r"\b(two|three|six|twelve|dos|tres|zwei|drei|deux|trois)\s+(hours|horas|stunden|heures)")
+_NUMBER_WORDS = {"two": 2, "three": 3, "six": 6, "twelve": 12, "dos": 2, "tres": 3, "zwei": 2, "drei": 3, "deux": 2,
+                 "trois": 3}  # fmt: skip
+
+
+def ops_window(t: str) -> float | None:
+    """Minutes of a window in any of the four languages ("last 30 min", "últimas 2 horas"), None if none."""
+    m = _OPS_WINDOW.search(t)
+    if m:
+        return float(m.group(1)) * (1.0 if m.group(2).startswith("m") else 60.0)
+    m = _OPS_LAST_N_HOURS.search(t)
+    if m:
+        return _NUMBER_WORDS[m.group(1)] * 60.0
+    return 60.0 if _OPS_HOUR.search(t) else None
+
+
+def ops_intent(t: str) -> Intent | None:
+    """Questions for the operator tools (energy over a window, setpoint gaps, where/when a peak was, the weather on
+    the towers, another controller on the twin), in any of the four languages; None when it is none of them."""
+    controller = next((name for name in CONTROLLERS if re.search(rf"\b{name}\b", t)), None)
+    minutes = ops_window(t)
+    if controller and _OPS_CONTROLLER.search(t) and not _IMPERATIVE.search(t):
+        window = _OPS_WINDOW.search(t)
+        return Intent("whatif_controller", controller=controller, window_s=minutes * 60.0 if window else None)
+    if _OPS_GAP.search(t) and _OPS_SETPOINT.search(t):
+        level = "tower" if _OPS_TOWER.search(t) else "cabinet"
+        cabinet, tower = _OPS_CABINET.search(t), _OPS_TOWER_N.search(t)
+        return Intent("gap", level=level, cabinet=int(cabinet.group(1)) if cabinet and level == "cabinet" else None,
+                      tower=int(tower.group(1)) if tower and level == "tower" else None)  # fmt: skip
+    if _OPS_ENERGY.search(t) and not _OPS_NOT_ENERGY.search(t):
+        what = next((name for name, pattern in _OPS_WHAT if re.search(pattern, t)), "cooling")
+        return Intent("energy_used", what=what, window_s=(minutes or 60.0) * 60.0)
+    if _OPS_WHERE_WHEN.search(t) and _OPS_EXTREME.search(t) and (_OPS_PAST.search(t) or minutes is not None):
+        return Intent("peak", quantity=find_quantity(t), low=bool(_OPS_LOW.search(t)),
+                      window_s=(minutes or 60.0) * 60.0)  # fmt: skip
+    if _OPS_WEATHER.search(t):
+        return Intent("weather", window_s=(minutes or 60.0) * 60.0)
+    return None
+
+
+# Spanish, German and French words the rules read as their English meaning (longest first); the operator tools'
+# rules (ops_intent) read the four languages themselves.
+_GLOSS: list[tuple[re.Pattern, str]] = [(re.compile(rf"(?<!\w){p}(?!\w)"), en) for p, en in sorted({
+    # entities
+    "gabinetes?": "cabinet", "armarios?": "cabinet", "schr[aä]nke?s?": "cabinet", "armoires?": "cabinet",
+    "l'armoire": "cabinet", "de l'armoire": "of cabinet", "ramas?": "branch", "zweige?s?": "branch",
+    "torres?": "tower", "t[uü]rme?s?": "tower", "tours?": "tower", "la tour": "tower", "de la tour": "of tower",
+    "grupos de blades": "blade groups", "blade-gruppen": "blade groups", "groupes de lames": "blade groups",
+    # quantities
+    "temperatura de (los )?blades": "blade temperature", "blade-temperatur": "blade temperature",
+    "temperatura media de (los )?blades": "average blade temperature",
+    "temp[ée]rature des lames": "blade temperature", "temp[ée]rature moyenne des lames": "average blade temperature",
+    "température moyenne": "average temperature",
+    # directions and commands
+    "erh[oö]ht": "raised", "gesenkt": "lowered", "subi[oó]": "raised", "aument[oó]": "raised", "baj[oó]": "lowered",
+    "augment[ée]e?": "raised", "baiss[ée]e?": "lowered", "sube": "raise", "baja": "lower", "pon": "set",
+    "cambia": "change", "setze?": "set", "stelle?": "set", "erh[oö]he": "raise", "senke": "lower", "mets": "set",
+    "r[eè]gle": "set", "augmente": "raise", "baisse": "lower", "passe en": "switch to", "passe sur": "switch to",
+    "cambia a": "switch to", "wechsle (zu|auf)": "switch to", "schalte auf": "switch to", "auf": "to", "à": "to",
+    "modo manual": "manual mode", "mode manuel": "manual mode", "manuell": "manual", "manuel": "manual",
+    "temperatura media": "average temperature", "mittlere": "average", "durchschnittliche": "average",
+    "impulsi[oó]n": "supply", "vorlauf(temperatur)?": "supply", "d[ée]part": "supply", "retorno": "return",
+    "r[uü]cklauf": "return", "retour": "return", "consigna": "setpoint", "sollwert": "setpoint",
+    "consigne": "setpoint", "presi[oó]n diferencial": "differential pressure", "differenzdruck": "differential pressure",
+    "pression diff[ée]rentielle": "differential pressure", "caudal": "flow", "durchfluss": "flow", "d[ée]bit": "flow",
+    "v[aá]lvulas?": "valve", "ventile?": "valve", "vannes?": "valve", "bombas?": "pumps", "pumpen?": "pumps",
+    "pompes?": "pumps", "ventiladores?": "fans", "l[uü]fter": "fans", "ventilateurs?": "fans",
+    "bulbo h[uú]medo": "wet bulb", "feuchtkugel": "wet bulb", "bulbe humide": "wet bulb",
+    "agua de salida": "leaving water", "austrittswasser": "leaving water", "eau de sortie": "leaving water",
+    "aproximaci[oó]n": "approach", "approche": "approach", "carga it": "it load", "it-last": "it load",
+    "charge it": "it load", "potencia it": "it power", "it-leistung": "it power", "puissance it": "it power",
+    "calor rechazado": "heat rejected", "abgegebene w[aä]rme": "heat rejected", "chaleur rejet[ée]e": "heat rejected",
+    "alertas?": "alerts", "alarme?": "alerts", "alertes?": "alerts", "agentes": "agents", "regler": "controller",
+    "controlador": "controller", "r[ée]gulateur": "controller", "banda": "band", "bande": "band",
+    # questions and words of time and rank
+    "[uú]ltima hora": "last hour", "letzten stunde": "last hour", "derni[eè]re heure": "last hour",
+    "[uú]ltimos": "last", "letzten": "last", "derni[eè]res": "last", "minutos": "minutes", "minuten": "minutes",
+    "horas": "hours", "stunden": "hours", "heures": "hours", "hace": "ago", "vor": "ago", "il y a": "ago",
+    "m[aá]s caliente": "hottest", "hei(ß|ss)este[rns]?": "hottest", "le plus chaud": "hottest",
+    "la plus chaude": "hottest", "m[aá]s fr[ií][oa]": "coolest", "k[aä]lteste[rns]?": "coolest",
+    "le plus froid": "coolest", "compara": "compare", "vergleiche": "compare", "compare": "compare",
+    "ahora": "now", "jetzt": "now", "gerade": "now", "maintenant": "now", "actuel(le)?": "current",
+    "cu[aá]ntos": "how many", "wie viele": "how many", "combien": "how many", "por qu[eé]": "why",
+    "warum": "why", "pourquoi": "why", "estado": "status", "zustand": "status", "[ée]tat": "status",
+    "situaci[oó]n": "status", "lage": "status", "comment [çc]a va": "status", "qu[eé] pasar[ií]a si": "what if",
+    "was w[aä]re,? wenn": "what if", "que se passerait-il si": "what if", "y": "and", "und": "and", "et": "and",
+    "medio": "average", "moyenne": "average", "m[aá]ximo": "maximum", "maximal": "maximum", "mínimo": "minimum",
+}.items(), key=lambda kv: -len(kv[0]))]  # fmt: skip
+
+
+def english_gloss(text: str) -> str:
+    """A Spanish, German or French question with the words the rules know replaced by their English meaning."""
+    for pattern, english in _GLOSS:
+        text = pattern.sub(english, text)
+    return text
+
+
 def classify(text: str) -> Intent:
     """The intent of an operator's question (see the module docstring for the rules)."""
     t = normalize(text)
+    ops = ops_intent(t)
+    if ops is not None:
+        return ops
+    from lcmesh.mesh.agents.ui.language import detect_language
+
+    if detect_language(t) != "en":
+        t = english_gloss(t)
     quantity = find_quantity(t)
     cabinet, branch, tower = _index(t, "cabinet"), _index(t, "branch"), _index(t, "tower")
     window_s, window_text = find_window(t)
@@ -339,7 +486,7 @@ def classify(text: str) -> Intent:
     if _RANK.search(t):
         top = _TOP.search(t)
         return Intent("rank", low=bool(_LOW_WORDS.search(t)), top=int(top.group(1) or top.group(2)) if top else None,
-                      **common)  # fmt: skip
+                      level="branch" if _OPS_BRANCHES.search(t) else None, **common)  # fmt: skip
     if quantity is not None or _STATE.search(t) or cabinet is not None or tower is not None:
         return Intent("state", **common)
     return Intent("help", **common)

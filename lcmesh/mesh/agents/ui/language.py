@@ -210,6 +210,15 @@ PHRASES: dict[str, dict[str, str]] = {
     "can_do": _CAN_DO,
     "refusal": _by_lang("I can't tell that from here. ", "No puedo saber eso desde aquí. ",
                         "Das kann ich von hier aus nicht sagen. ", "Je ne peux pas le dire d'ici. "),
+    "decline": _by_lang("I can't answer that as asked: the question asks for {missing}, and what I found does not "
+                        "give it.", "No puedo responder a eso tal como se preguntó: la pregunta pide {missing}, y lo "
+                        "que encontré no lo da.", "Das kann ich so nicht beantworten: die Frage verlangt {missing}, "
+                        "und was ich gefunden habe, liefert das nicht.", "Je ne peux pas répondre à cela tel quel : "
+                        "la question demande {missing}, et ce que j'ai trouvé ne le donne pas."),
+    "decline.instead": _by_lang("What I can give instead (not an answer to your question): {draft}",
+                                "Lo que puedo dar en su lugar (no es la respuesta a su pregunta): {draft}",
+                                "Was ich stattdessen geben kann (keine Antwort auf Ihre Frage): {draft}",
+                                "Ce que je peux donner à la place (pas une réponse à votre question) : {draft}"),
     "tool_error": _by_lang("I can't answer that as asked: “{error}”.", "No puedo responder a eso tal como se "
                            "preguntó: “{error}”.", "Das kann ich so nicht beantworten: “{error}”.",
                            "Je ne peux pas répondre à cela tel quel : “{error}”."),
@@ -273,6 +282,10 @@ PHRASES: dict[str, dict[str, str]] = {
                            " {fold_head} über alle {count} beträgt {value}.",
                            " {fold_head} sur les {count} est de {value}."),
     # compare
+    "compare.equal": _by_lang("The {label}: {items}. They are equal at the displayed precision.",
+                              "{the_label}: {items}. Son iguales a la precisión mostrada.",
+                              "{the_label}: {items}. Bei der angezeigten Genauigkeit sind sie gleich.",
+                              "{the_label} : {items}. Ils sont égaux à la précision affichée."),
     "compare": _by_lang("The {label}: {items}. {highest_cap} is the highest, {diff} above {lowest}.",
                         "{the_label}: {items}. El valor más alto lo tiene {highest_the}, {diff} por encima "
                         "{lowest_of}.", "{the_label}: {items}. Den höchsten Wert hat {highest}, {diff} über {lowest}.",
@@ -396,6 +409,109 @@ PHRASES: dict[str, dict[str, str]] = {
         "Prévision à {minutes} sur le jumeau en direct (charge et météo fixes) pour {verb} {the_label}{scope} de "
         "{change}. Prévu par rapport au maintien des consignes : groupe de lames le plus chaud {blade} ; dans la "
         "bande {band} ; ventilateurs des tours {fans} ; pompes {pumps}. Rien n'a été modifié."),
+    # energy_used
+    "energy_used": _by_lang(
+        "Over the last {minutes} the {what} used {kwh} of energy (on average {mean} of power).",
+        "En los últimos {minutes}, {what} consumió {kwh} de energía (potencia media {mean}).",
+        "In den letzten {minutes} hat {what} {kwh} Energie verbraucht (mittlere Leistung {mean}).",
+        "Sur les dernières {minutes}, {what} a consommé {kwh} d'énergie (puissance moyenne {mean})."),
+    "energy_used.what.cooling": _by_lang("cooling plant", "la refrigeración", "die Kühlung", "le refroidissement"),
+    "energy_used.what.pumps": _by_lang("pumps", "el conjunto de bombas", "der Pumpenpark", "l'ensemble des pompes"),
+    "energy_used.what.tower_fans": _by_lang("tower fans", "el conjunto de ventiladores de las torres",
+                                            "der Turmlüfterpark", "l'ensemble des ventilateurs des tours"),
+    "energy_used.what.it": _by_lang("IT load", "la carga IT", "die IT-Last", "la charge IT"),
+    "energy_used.what.heat_rejected": _by_lang("heat rejected by the towers (heat, not power drawn)",
+                                               "el calor rechazado por las torres (calor, no consumo)",
+                                               "die von den Türmen abgegebene Wärme (Wärme, kein Verbrauch)",
+                                               "la chaleur rejetée par les tours (chaleur, pas consommation)"),
+    # tracking_gap
+    "gap.cabinet": _by_lang("Measured CDU supply against its setpoint: {items}.",
+                            "Impulsión medida de cada CDU frente a su consigna: {items}.",
+                            "Gemessener CDU-Vorlauf gegen seinen Sollwert: {items}.",
+                            "Départ CDU mesuré face à sa consigne : {items}."),
+    "gap.tower": _by_lang("Tower leaving water against its setpoint: {items}.",
+                          "Agua de salida de cada torre frente a su consigna: {items}.",
+                          "Turm-Austrittswasser gegen seinen Sollwert: {items}.",
+                          "Eau de sortie des tours face à sa consigne : {items}."),
+    "gap.item": _by_lang("{entity} {gap} {side} ({measured} against {setpoint})",
+                         "{entity} {gap} {side} ({measured} frente a {setpoint})",
+                         "{entity} {gap} {side} ({measured} gegen {setpoint})",
+                         "{entity} {gap} {side} ({measured} face à {setpoint})"),
+    "gap.above": _by_lang("above", "por encima", "darüber", "au-dessus"),
+    "gap.below": _by_lang("below", "por debajo", "darunter", "en dessous"),
+    "gap.largest": _by_lang(" The biggest gap: {entity}.", " La mayor diferencia: {entity}.",
+                            " Die größte Abweichung: {entity}.", " Le plus grand écart : {entity}."),
+    # peak
+    "peak": _by_lang("Over the last {minutes}, the {label} {word} {value} {entity_in}, at {at} ({ago} ago).",
+                     "En los últimos {minutes}, {the_label} {word} {value} {entity_in}, a las {at} (hace {ago}).",
+                     "{the_label} lag {word} {value} {entity_in}, um {at} (vor {ago}), gesehen über die letzten "
+                     "{minutes}.",
+                     "Sur les dernières {minutes}, {the_label} {word} {value} {entity_in}, à {at} (il y a {ago})."),
+    "peak.plant": _by_lang("Over the last {minutes} the {label} {word} {value} at {at} ({ago} ago).",
+                           "En los últimos {minutes}, {the_label} {word} {value} a las {at} (hace {ago}).",
+                           "In den letzten {minutes} lag {the_label} {word} {value} um {at} (vor {ago}).",
+                           "Sur les dernières {minutes}, {the_label} {word} {value} à {at} (il y a {ago})."),
+    # weather_effect
+    "weather": _by_lang(
+        "The wet bulb is {wb} ({wb_change} over the last {minutes}); the tower fans draw {fans} ({fans_change} over "
+        "the same time). Per tower: {items}.",
+        "El bulbo húmedo está en {wb} ({wb_change} en los últimos {minutes}); los ventiladores de las torres consumen "
+        "{fans} ({fans_change} en ese tiempo). Por torre: {items}.",
+        "Die Feuchtkugel liegt bei {wb} ({wb_change} in den letzten {minutes}); die Turmlüfter ziehen {fans} "
+        "({fans_change} in derselben Zeit). Je Turm: {items}.",
+        "Le bulbe humide est à {wb} ({wb_change} sur les dernières {minutes}) ; les ventilateurs des tours consomment "
+        "{fans} ({fans_change} sur la même période). Par tour : {items}."),
+    "weather.item": _by_lang("{entity} has approach {approach} and leaving water {lw} with fan speed {speed} and fan "
+                             "power {power}", "{entity} tiene aproximación {approach} y agua de salida {lw} con "
+                             "velocidad de ventiladores {speed} y ventiladores {power}", "{entity} hat Approach "
+                             "{approach} und Austrittswasser {lw} bei Lüfterdrehzahl {speed} und Lüfterleistung "
+                             "{power}", "{entity} a une approche de {approach} et une eau de sortie à {lw} avec une "
+                             "vitesse des ventilateurs de {speed} et des ventilateurs à {power}"),
+    "weather.per_k": _by_lang(" At this load the tower fans would need about {per_k} more to hold the same leaving "
+                              "water at one more kelvin of wet bulb (tower model).",
+                              " Con esta carga, los ventiladores necesitarían unos {per_k} más para mantener la "
+                              "misma agua de salida con un kelvin más de bulbo húmedo (modelo de torre).",
+                              " Bei dieser Last bräuchten die Lüfter etwa {per_k} mehr, um dasselbe "
+                              "Austrittswasser bei einem Kelvin mehr Feuchtkugel zu halten (Turmmodell).",
+                              " À cette charge, les ventilateurs auraient besoin d'environ {per_k} de plus pour "
+                              "garder la même eau de sortie avec un kelvin de bulbe humide en plus (modèle de tour)."),
+    "weather.per_k.none": _by_lang(" At one more kelvin of wet bulb a tower could not hold today's leaving water even "
+                                   "at full fan speed.", " Con un kelvin más de bulbo húmedo, una torre no podría "
+                                   "mantener el agua de salida actual ni a plena velocidad.", " Bei einem Kelvin "
+                                   "mehr Feuchtkugel könnte ein Turm das heutige Austrittswasser selbst mit voller "
+                                   "Lüfterdrehzahl nicht halten.", " Avec un kelvin de bulbe humide en plus, une "
+                                   "tour ne pourrait pas tenir l'eau de sortie actuelle même à pleine vitesse."),
+    "trend.signed.up": _by_lang("up {change}", "sube {change}", "plus {change}", "en hausse de {change}"),
+    "trend.signed.down": _by_lang("down {change}", "baja {change}", "minus {change}", "en baisse de {change}"),
+    "trend.signed.flat": _by_lang("unchanged", "sin cambio", "unverändert", "inchangé"),
+    # whatif_controller
+    "whatif_ctrl": _by_lang(
+        "A look-ahead of {minutes} on the live twin (load and weather held), from the state now: {current} would "
+        "use {cur_kwh} of cooling energy (hottest blade group {cur_hot}; in band on average {cur_band}); {other} "
+        "{alt_kwh} (hottest blade group {alt_hot}; in band {alt_band}). {verdict} Nothing was changed.",
+        "Simulación de {minutes} en el gemelo en vivo (carga y clima fijos), desde el estado actual: {current} "
+        "usaría {cur_kwh} de energía de refrigeración (grupo de blades más caliente {cur_hot}; en banda de media "
+        "{cur_band}); {other} {alt_kwh} (grupo de blades más caliente {alt_hot}; en banda {alt_band}). {verdict} No se cambió nada.",
+        "Vorausschau über {minutes} am Live-Zwilling (Last und Wetter fest), ab dem jetzigen Zustand: {current} "
+        "bräuchte {cur_kwh} Kühlenergie (heißeste Blade-Gruppe {cur_hot}; im Mittel im Band {cur_band}); {other} "
+        "{alt_kwh} (heißeste Blade-Gruppe {alt_hot}; im Band {alt_band}). {verdict} Nichts wurde geändert.",
+        "Prévision de {minutes} sur le jumeau en direct (charge et météo fixes), depuis l'état actuel : {current} "
+        "consommerait {cur_kwh} d'énergie de refroidissement (groupe de lames le plus chaud {cur_hot} ; dans la bande "
+        "en moyenne {cur_band}) ; {other} {alt_kwh} (groupe de lames le plus chaud {alt_hot} ; dans la bande {alt_band}). {verdict} Rien n'a "
+        "été modifié."),
+    "whatif_ctrl.saves": _by_lang("{other} would save {saved} of cooling energy over that time.",
+                                  "{other} ahorraría {saved} de energía de refrigeración en ese tiempo.",
+                                  "{other} würde in dieser Zeit {saved} Kühlenergie sparen.",
+                                  "{other} économiserait {saved} d'énergie de refroidissement sur cette période."),
+    "whatif_ctrl.costs": _by_lang("{other} would need {saved} more cooling energy over that time, so the current "
+                                  "controller is saving energy against it.",
+                                  "{other} necesitaría {saved} más de energía de refrigeración en ese tiempo: el "
+                                  "controlador actual ahorra energía frente a él.",
+                                  "{other} bräuchte in dieser Zeit {saved} mehr Kühlenergie: der aktuelle Regler "
+                                  "spart gegenüber ihm Energie.",
+                                  "{other} aurait besoin de {saved} de plus d'énergie de refroidissement sur cette "
+                                  "période : le régulateur actuel économise de l'énergie face à lui."),
+    "whatif_ctrl.note": _by_lang(" Note: {quote}.", " Nota: {quote}.", " Hinweis: {quote}.", " Note : {quote}."),
     "whatif.pair": _by_lang("{predicted} instead of {baseline}", "{predicted} en lugar de {baseline}",
                             "{predicted} statt {baseline}", "{predicted} au lieu de {baseline}"),
     "whatif.raise": _by_lang("raising", "subir", "anheben", "relever"),

@@ -18,6 +18,8 @@ say so in the plan (``by="rules"``, ``note="llm output invalid: ..."``) and coun
 
 from __future__ import annotations
 
+import re
+
 import json
 import logging
 import threading
@@ -37,6 +39,9 @@ from lcmesh.mesh.tools.plant_data import (
     AgentsRequest, AlertsRequest, BandRequest, CompareRequest, ControllerRequest, DecisionRequest, EnergyRequest,
     HistoryRequest, OverviewRequest, ProposeRequest, RankRequest, StateRequest, WhatIfSetpointRequest,
 )  # fmt: skip
+from lcmesh.mesh.tools.operations import (
+    EnergyUsedRequest, PeakRequest, TrackingGapRequest, WeatherRequest, WhatIfControllerRequest,
+)  # fmt: skip
 from lcmesh.twin.system import PSI_TO_PA
 
 PLANNER_TOOLS: dict[str, type[BaseModel]] = {
@@ -44,6 +49,8 @@ PLANNER_TOOLS: dict[str, type[BaseModel]] = {
     "compare": CompareRequest, "band_count": BandRequest, "energy_balance": EnergyRequest, "alerts": AlertsRequest,
     "decision": DecisionRequest, "controller": ControllerRequest, "agents": AgentsRequest,
     "propose_change": ProposeRequest, "whatif_setpoint": WhatIfSetpointRequest,
+    "energy_used": EnergyUsedRequest, "tracking_gap": TrackingGapRequest, "peak": PeakRequest,
+    "weather_effect": WeatherRequest, "whatif_controller": WhatIfControllerRequest,
 }  # fmt: skip
 PLANNER_ADAPTER = Path(__file__).resolve().parents[3] / "artifacts" / "llm-planner"
 MAX_CALLS = 4  # a question asks a few things at most; more is a runaway answer
@@ -243,7 +250,9 @@ def intent_calls(intent: Intent) -> list[ToolCall]:
         if q == "pump_power" and intent.cabinet is None:
             q = "cdu_pump_power"  # ranking cabinets by pump power: their CDU pumps
         top = {"top": intent.top} if intent.top else {}
-        return [ToolCall("rank", {"quantity": q, "order": "lowest" if intent.low else "highest", **top})]
+        level = {"level": "branch"} if intent.level == "branch" and q in ("blade_temp", "blade_temp_mean", "flow",
+                                                                          "valve", "it_power") else {}  # fmt: skip
+        return [ToolCall("rank", {"quantity": q, "order": "lowest" if intent.low else "highest", **top, **level})]
     if kind == "entities":
         which = {"cabinets": list(intent.cabinets)} if intent.cabinets else {"towers": list(intent.towers)}
         return [ToolCall("compare", {"quantity": q, **which})]
@@ -263,6 +272,26 @@ def intent_calls(intent: Intent) -> list[ToolCall]:
         return [ToolCall("whatif_setpoint", {**args, **({"cabinet": intent.cabinet} if intent.cabinet else {})})]
     if kind == "command":
         return _command_calls(intent)
+    return _ops_calls(intent)
+
+
+def _ops_calls(intent: Intent) -> list[ToolCall]:
+    """The operator tools' calls (energy, gap, peak, weather, another controller); defaults left out."""
+    minutes = {"minutes": round(intent.window_s / 60.0, 4)} if intent.window_s and intent.window_s != 3600.0 else {}
+    if intent.kind == "energy_used":
+        return [ToolCall("energy_used", {**({"what": intent.what} if intent.what != "cooling" else {}), **minutes})]
+    if intent.kind == "gap":
+        args = {"level": "tower"} if intent.level == "tower" else {}
+        args.update({k: v for k, v in (("cabinet", intent.cabinet), ("tower", intent.tower)) if v is not None})
+        return [ToolCall("tracking_gap", args)]
+    if intent.kind == "peak":
+        q = _quantity(intent)
+        args = {"quantity": q} if q != "blade_temp" else {}
+        return [ToolCall("peak", {**args, **minutes, **({"extreme": "min"} if intent.low else {})})]
+    if intent.kind == "weather":
+        return [ToolCall("weather_effect", minutes)]
+    if intent.kind == "whatif_controller":
+        return [ToolCall("whatif_controller", {"controller": intent.controller, **minutes})]
     return []
 
 
@@ -297,7 +326,30 @@ class RulePlanner:
     by = "rules"
 
     def plan(self, question: str) -> Plan:
-        return Plan(_checked(intent_calls(classify(question))), by=self.by)
+        calls = _checked(intent_calls(classify(question)))
+        parts = split_parts(question)
+        if len(parts) > 1:  # a multi-part question: each part's calls, kept when they cover more of the question
+            from lcmesh.mesh.agents.ui.chat import uncovered
+
+            combined: list[ToolCall] = []
+            for part in parts:
+                combined += [c for c in _checked(intent_calls(classify(part))) if c not in combined]
+            missing, whole = len(uncovered(question, combined[:MAX_CALLS])), len(uncovered(question, calls))
+            if combined and (missing < whole or (missing == whole and len(combined) > len(calls))):
+                calls = combined[:MAX_CALLS]
+        return Plan(calls, by=self.by)
+
+
+_PARTS = re.compile(r"\s*(?:[?;]|,?\s+(?:and|also|plus|then|y|e|und|sowie|et|puis)\s+(?=(?:what|which|how|is|are|"
+                    r"the|why|when|where|list|show|give|compare|cu[aá]l|qu[eé]|c[oó]mo|d[oó]nde|por qu[eé]|wie|was|"
+                    r"welche|warum|wo|wann|quel|quelle|comment|pourquoi|o[uù]|combien|la|le|les|el|los|las|die|der|"
+                    r"das)\b)|,\s+(?=(?:what|which|how|why|where|when)\b))", re.IGNORECASE)  # fmt: skip
+
+
+def split_parts(question: str) -> list[str]:
+    """A question's parts at "?", ";" and a conjunction that starts a new question ("... and what is ..."), in the
+    four languages; one part when there is nothing to split."""
+    return [p.strip() for p in _PARTS.split(question) if p and p.strip() and len(p.strip()) > 2]
 
 
 # --- the local LLM ------------------------------------------------------------------------------------------

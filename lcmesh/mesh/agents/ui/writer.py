@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from lcmesh.mesh.agents.ui.facts import FactBook, fact
+from lcmesh.mesh.agents.ui.facts import FactBook, fact, format_value
 from lcmesh.mesh.agents.ui.language import ENTITY_FORMS, FOLDS, SUPERLATIVES, phrase, quantity_label
 from lcmesh.mesh.tools.plant_data import QUANTITIES
 
@@ -205,6 +205,8 @@ def _compare(w: Writer, r: dict, args: dict) -> str:
                                         **extreme(v["entity"])))
                       for v in r["values"])  # fmt: skip
     delta_unit = "K" if unit == "degC" else unit
+    if format_value(r["difference"], delta_unit) == format_value(0.0, delta_unit):  # no "tower 1 is above tower 1"
+        return w.say(w.t("compare.equal", items=items, **w.label(q, label)))
     highest = w.entity_slots(r["highest"], "highest")
     diff = w.value(r["difference"], delta_unit, "highest minus lowest", quantity=q, unsigned=True,
                    entity=f"{r['highest']} minus {r['lowest']}")  # fmt: skip
@@ -368,11 +370,119 @@ def _whatif_setpoint(w: Writer, r: dict, args: dict) -> str:
                      pumps=pair("pump_power_kw", "pumps", "pump_power", "kW")))  # fmt: skip
 
 
+def _energy_used(w: Writer, r: dict, args: dict) -> str:
+    quantity = {"cooling": "cooling_power", "pumps": "pump_power", "tower_fans": "tower_power", "it": "it_power",
+                "heat_rejected": "heat_rejected"}[r["what"]]  # fmt: skip
+    text = w.t("energy_used", what=w.t(f"energy_used.what.{r['what']}"),
+               minutes=w.value(r["minutes_covered"], "min", "minutes of history integrated", quantity="window"),
+               kwh=w.value(r["kwh"], "kWh", f"{r['label']} energy", entity="plant", quantity=quantity, kind="energy"),
+               mean=w.value(r["mean_kw"], "kW", f"{r['label']} mean power", entity="plant", quantity=quantity,
+                            stat="mean"))  # fmt: skip
+    if r["minutes_covered"] < r["minutes_asked"] - 1:
+        text += w.t("history.short", asked=w.value(r["minutes_asked"], "min", "window asked for", quantity="window"))
+    return w.say(text)
+
+
+def _tracking_gap(w: Writer, r: dict, args: dict) -> str:
+    quantity = "supply" if r["level"] == "cabinet" else "lw"
+    items = []
+    for g in r["gaps"]:
+        e = g["entity"]
+        items.append(w.t("gap.item", entity=w.entity(e),
+                         measured=w.value(g["measured_c"], "degC", "measured", entity=e, quantity=quantity),
+                         setpoint=w.value(g["setpoint_c"], "degC", "setpoint", entity=e, quantity=quantity),
+                         gap=w.value(abs(g["gap_k"]), "K", "gap to the setpoint", entity=e, quantity=quantity,
+                                     kind="gap", unsigned=True),
+                         side=w.t("gap.above" if g["gap_k"] > 0 else "gap.below")))  # fmt: skip
+    text = w.t(f"gap.{r['level']}", items="; ".join(items))
+    if len(r["gaps"]) > 1:
+        text += w.t("gap.largest", **w.entity_slots(r["largest"]))
+    return w.say(text)
+
+
+def _peak(w: Writer, r: dict, args: dict) -> str:
+    q, unit, label = r["quantity"], r["unit"], r["label"]
+    names = w.label(q, label)
+    order = "highest" if r["extreme"] == "max" else "lowest"
+    slots = {} if r["entity"] == "plant" else w.entity_slots(r["entity"])
+    at = r["at"][11:19] + " UTC" if len(r["at"]) >= 19 else r["at"]
+    text = w.t("peak.plant" if r["entity"] == "plant" else "peak", **slots, **names,
+               minutes=w.value(r["minutes_covered"], "min", "minutes of history read"),
+               word=w.t(f"stat.{r['extreme']}"),
+               value=w.value(r["value"], unit, f"{r['extreme']} {label}", entity=r["entity"], quantity=q,
+                             stat=r["extreme"], extreme=order),
+               at=w.value(at, "", "when", quantity="time"),
+               ago=w.value(r["minutes_ago"], "min", "how long ago"))  # fmt: skip
+    if r["minutes_covered"] < r["minutes_asked"] - 1:
+        text += w.t("history.short", asked=w.value(r["minutes_asked"], "min", "window asked for", quantity="window"))
+    return w.say(text)
+
+
+def _signed(w: Writer, value: float, unit: str, text: str, quantity: str, decimals: int = 1) -> str:
+    if round(value, decimals) == 0:
+        return w.t("trend.signed.flat")
+    change = w.value(abs(value), unit, text, entity="plant", quantity=quantity, unsigned=True)
+    return w.t("trend.signed.up" if value > 0 else "trend.signed.down", change=change)
+
+
+def _weather_effect(w: Writer, r: dict, args: dict) -> str:
+    items = "; ".join(w.t("weather.item", entity=w.entity(t["entity"]),
+                          approach=w.value(t["approach_k"], "K", "approach", entity=t["entity"], quantity="approach"),
+                          lw=w.value(t["leaving_water_c"], "degC", "leaving water", entity=t["entity"],
+                                     quantity="leaving_water"),
+                          speed=w.value(t["fan_speed_pct"], "%", "fan speed", entity=t["entity"], quantity="fan_speed"),
+                          power=w.value(t["fan_power_kw"], "kW", "fan power", entity=t["entity"],
+                                        quantity="tower_power"))
+                      for t in r["towers"])  # fmt: skip
+    text = w.t("weather", items=items,
+               wb=w.value(r["wet_bulb_c"], "degC", "wet bulb", entity="plant", quantity="wet_bulb"),
+               wb_change=_signed(w, r["wet_bulb_change_k"], "K", "wet-bulb change", "wet_bulb"),
+               minutes=w.value(r["minutes_covered"], "min", "minutes of history read"),
+               fans=w.value(r["fan_power_kw"], "kW", "tower fan power", entity="plant", quantity="tower_power"),
+               fans_change=_signed(w, r["fan_power_change_kw"], "kW", "fan power change", "tower_power"))  # fmt: skip
+    if r.get("fan_kw_per_k_wet_bulb") is not None:
+        text += w.t("weather.per_k", per_k=w.value(r["fan_kw_per_k_wet_bulb"], "kW", "fan power per kelvin of wet "
+                                                   "bulb", entity="plant", quantity="tower_power"))  # fmt: skip
+    else:
+        text += w.t("weather.per_k.none")
+    return w.say(text)
+
+
+def _whatif_controller(w: Writer, r: dict, args: dict) -> str:
+    cur, alt = r["current"], r["alternative"]
+
+    def course(c: dict, case: str) -> dict[str, str]:
+        return {"kwh": w.value(c["cooling_kwh"], "kWh", f"cooling energy, {c['controller']}", entity="plant",
+                               quantity="cooling_power", case=case, kind="energy"),
+                "hot": w.value(c["hottest_blade_c"], "degC", f"hottest blade group, {c['controller']}",
+                               entity="plant", quantity="blade_temp", case=case),
+                "band": w.value(c["in_band_pct"], "%", f"share in band, {c['controller']}", entity="plant",
+                                quantity="in_band", case=case)}  # fmt: skip
+
+    now, other = course(cur, "current"), course(alt, "alternative")
+    names = {"current": w.value(cur["controller"], "", "the controller now", quantity="controller"),
+             "other": w.value(alt["controller"], "", "the controller tried", quantity="controller")}
+    saved = w.value(abs(r["cooling_kwh_saved"]), "kWh", "cooling energy difference", entity="plant",
+                    quantity="cooling_power", unsigned=True, kind="energy")  # fmt: skip
+    verdict = w.t("whatif_ctrl.saves" if r["cooling_kwh_saved"] > 0 else "whatif_ctrl.costs", other=names["other"],
+                  saved=saved)  # fmt: skip
+    verdict = verdict[:1].upper() + verdict[1:]
+    text = w.t("whatif_ctrl", minutes=w.value(r["minutes"], "min", "look-ahead horizon", quantity="window"),
+               current=names["current"], other=names["other"], verdict=verdict,
+               cur_kwh=now["kwh"], cur_hot=now["hot"], cur_band=now["band"],
+               alt_kwh=other["kwh"], alt_hot=other["hot"], alt_band=other["band"])  # fmt: skip
+    notes = [c["note"] for c in (cur, alt) if c.get("note")]
+    if notes:
+        text += w.t("whatif_ctrl.note", quote=w.quote(notes[0], "controller note"))
+    return w.say(text)
+
+
 WRITERS: dict[str, Callable[[Writer, dict, dict], str]] = {
     "plant_state": _plant_state, "overview": _overview, "history_stat": _history_stat, "rank": _rank,
     "compare": _compare, "band_count": _band_count, "energy_balance": _energy_balance, "alerts": _alerts,
     "decision": _decision, "controller": _controller, "agents": _agents, "propose_change": _propose_change,
-    "whatif_setpoint": _whatif_setpoint,
+    "whatif_setpoint": _whatif_setpoint, "energy_used": _energy_used, "tracking_gap": _tracking_gap, "peak": _peak,
+    "weather_effect": _weather_effect, "whatif_controller": _whatif_controller,
 }  # fmt: skip
 
 
