@@ -12,6 +12,9 @@ UI's ``ChatSources``, or the recorded site the chat benchmark replays.
 
 from __future__ import annotations
 
+import logging
+import re
+
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
@@ -22,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from lcmesh.twin.system import PSI_TO_PA, SystemDescription
 
 K0 = 273.15
+log = logging.getLogger("lcmesh.mesh.tools")
 BAND_C = (20.0, 40.0)  # the blade compliance band (LC-Opt, docs/twin.md)
 
 
@@ -345,6 +349,12 @@ class DecisionResponse(_Model):
     changes: list[Change] = []
     explanation: str | None = Field(None, description="the published explanation text, verbatim")
     searched_decisions: int = 0
+    reasons: str | None = Field(None, description="the decision's reasons for the cabinet asked about (or the one "
+                                "that changed), as plain sentences for a chat: no markdown")  # fmt: skip
+    reasons_for: str | None = Field(None, description="the cabinet the reasons are about")
+    reasons_source: Literal["published", "rendered"] | None = Field(
+        None, description="published: the explanation the mesh published is about that cabinet; rendered: it is about "
+                          "another cabinet, so the toolbox's renderer wrote this cabinet's from the decision's state")
 
 
 class ControllerRequest(_Model):
@@ -743,11 +753,70 @@ def decision(req: DecisionRequest, ctx: Any) -> DecisionResponse:
         picked = [c for c in changes if _matches(c, req)]
         if req.decision_id is None and filtered and not picked:
             continue
+        shown = (picked or changes)[:6]
+        cabinet = req.cabinet or next((_cabinet_of(c.what) for c in shown if _cabinet_of(c.what)), None)
+        reasons, source = decision_reasons(data, row, prev, cabinet)
         return DecisionResponse(found=True, decision_id=row["decision_id"], step=row["step"],
-                                controller=row["source_controller"], fallback=row["fallback"],
-                                changes=(picked or changes)[:6], explanation=row.get("explanation"),
-                                searched_decisions=k + 1)  # fmt: skip
+                                controller=row["source_controller"], fallback=row["fallback"], changes=shown,
+                                explanation=row.get("explanation"), searched_decisions=k + 1, reasons=reasons,
+                                reasons_for=f"cabinet {cabinet}" if reasons and cabinet else None,
+                                reasons_source=source)  # fmt: skip
     return DecisionResponse(found=False, searched_decisions=len(rows) - 1)
+
+
+_CABINET_IN = re.compile(r"\bcabinet (\d+)\b", re.IGNORECASE)
+_MARKDOWN_HEADING = re.compile(r"^\s*#{1,6}\s*([^\n]*)$", re.MULTILINE)
+
+
+def _cabinet_of(what: str) -> int | None:
+    """The cabinet a change is of ("valve of branch 2 of cabinet 3" -> 3); None for a tower's."""
+    m = _CABINET_IN.search(what)
+    return int(m.group(1)) if m else None
+
+
+def readable(text: str) -> str:
+    """An explanation as plain sentences for a chat: the short level's EXPLANATION and its overall temperature line,
+    without markdown headings, emphasis or bullets."""
+    parts = [p.strip() for p in _MARKDOWN_HEADING.split(text)]
+    sections = dict(zip(parts[1::2], parts[2::2])) if len(parts) > 1 else {"": text}
+    kept = [sections.get("EXPLANATION", "") or next(iter(sections.values()), "")]
+    impact = sections.get("TEMPERATURE IMPACT", "")
+    kept += [line.removeprefix("Overall:").strip() for line in impact.split("\n\n") if line.startswith("Overall:")]
+    plain = " ".join(" ".join(k.split()) for k in kept if k)
+    return re.sub(r"[*_`]{1,2}(\S[^*_`]*?)[*_`]{1,2}", r"\1", plain).replace("\n- ", " ").strip()
+
+
+def decision_reasons(data: PlantData, row: dict, prev: dict, cabinet: int | None) -> tuple[str | None, str | None]:
+    """(reasons, source) for `cabinet` of a decision: the published explanation when it is about that cabinet (or no
+    cabinet is asked), else the toolbox renderer's for that cabinet from the decision's stored state."""
+    published = row.get("explanation")
+    about = _CABINET_IN.search(published or "")
+    if published and (cabinet is None or (about and int(about.group(1)) == cabinet)):
+        return readable(published), "published"
+    if cabinet is None:
+        return None, None
+    from lcmesh.mesh.tools.explain import render_explanation
+    from lcmesh.mesh.tools.facts import cabinet_decision_facts
+    from lcmesh.twin.plant import PlantAction
+
+    state = data.history().state_at(row["step"], row.get("run_id"))
+    if state is None:  # this step was stored without its full state: the published text is all there is
+        return (readable(published), "published") if published else (None, None)
+
+    def action(a: dict) -> PlantAction:
+        return PlantAction(*(np.asarray(a[k], dtype=float) for k in ("supply_temp_setpoint_k", "dp_setpoint_pa",
+                                                                        "valve_fractions", "lw_setpoint_k")))
+
+    from lcmesh.mesh.messages import plant_state_to_observation
+
+    try:
+        out = plant_state_to_observation(state, data.system).out
+        facts = cabinet_decision_facts(data.system, out, action(row["action"]), action(prev["action"]),
+                                       float(state.wet_bulb_k), cabinet - 1)  # fmt: skip
+        return readable(render_explanation(facts, "short")), "rendered"
+    except (ValueError, KeyError) as exc:  # a state or action the renderer cannot read: say why, not crash
+        log.warning("no reasons for cabinet %s of decision %s: %s", cabinet, row.get("decision_id"), exc)
+        return (readable(published), "published") if published else (None, None)
 
 
 def controller(req: ControllerRequest, ctx: Any) -> ControllerResponse:

@@ -347,6 +347,14 @@ PHRASES: dict[str, dict[str, str]] = {
     "decision.nothing": _by_lang(" changed nothing beyond the dead bands.", " no cambió nada más allá de las bandas "
                                  "muertas.", " änderte nichts über die Totbänder hinaus.",
                                  " n'a rien changé au-delà des bandes mortes."),
+    "decision.reasons": _by_lang(" Its reasons for {entity}, written by the toolbox from the decision's state (the "
+                                 "published explanation is about another cabinet): {quote}",
+                                 " Sus razones para {entity}, escritas por la caja de herramientas a partir del "
+                                 "estado de la decisión (la explicación publicada trata de otro gabinete): {quote}",
+                                 " Ihre Gründe für {entity}, vom Werkzeugkasten aus dem Zustand der Entscheidung "
+                                 "geschrieben (die veröffentlichte Erklärung betrifft einen anderen Schrank): {quote}",
+                                 " Ses raisons pour {entity}, écrites par la boîte à outils à partir de l'état de la "
+                                 "décision (l'explication publiée porte sur une autre armoire) : {quote}"),
     "decision.explanation": _by_lang(" Its explanation: {quote}", " Su explicación: {quote}",
                                      " Ihre Erklärung: {quote}", " Son explication : {quote}"),
     "raised": _by_lang("raised", "subió", "erhöht", "a relevé"),

@@ -293,8 +293,11 @@ def _decision(w: Writer, r: dict, args: dict) -> str:
         text += w.t("decision.changes", items="; ".join(parts))
     else:
         text += w.t("decision.nothing")
-    if r.get("explanation"):
-        text += w.t("decision.explanation", quote=w.quote(r["explanation"], "the published explanation"))
+    if r.get("reasons") and r.get("reasons_source") == "rendered":  # the cabinet asked about, not the published one
+        text += w.t("decision.reasons", entity=w.entity(r["reasons_for"]),
+                    quote=w.quote(r["reasons"], f"the reasons for {r['reasons_for']}"))  # fmt: skip
+    elif r.get("reasons"):  # plain sentences for a chat, never raw markdown
+        text += w.t("decision.explanation", quote=w.quote(r["reasons"], "the published explanation"))
     return w.say(text)
 
 
