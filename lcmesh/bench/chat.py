@@ -185,6 +185,7 @@ class Row:
     seconds: float
     answer: str
     missing: list[str]
+    plan: list[dict]  # the calls it made
 
 
 def run_split(questions: list[Question], engine: Any, run_tool: Callable, *, clock: Callable[[], float] =
@@ -205,7 +206,8 @@ def run_split(questions: list[Question], engine: Any, run_tool: Callable, *, clo
         rows.append(Row(q.id, q.tags, plan == Counter(q.calls), judge(answer, ref), bool(answer["grounded"]),
                         bool(answer.get("refused")), q.refuse, bool(answer.get("declined")),
                         str(answer.get("planned_by", "?")).split(":")[0],
-                        seconds, answer["answer"], states(answer["answer"], ref.keys)))  # fmt: skip
+                        seconds, answer["answer"], states(answer["answer"], ref.keys),
+                        answer.get("plan", [])))  # fmt: skip
         if progress:
             progress(k + 1)
     return rows
@@ -233,7 +235,8 @@ def summarize(rows: list[Row]) -> dict[str, Any]:
         "latency_p50_s": float(np.percentile(seconds, 50)),
         "latency_p99_s": float(np.percentile(seconds, 99)),
         "by_tag": {t: round(sum(r.correct for r in rs) / len(rs), 3) for t, rs in sorted(by_tag.items())},
-        "wrong": [{"id": r.id, "answer": r.answer[:300], "missing": r.missing} for r in rows if not r.correct][:60],
+        "wrong": [{"id": r.id, "answer": r.answer[:300], "missing": r.missing, "plan": r.plan, "by": r.planned_by}
+                  for r in rows if not r.correct][:80],
     }
 
 

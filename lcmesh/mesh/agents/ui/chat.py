@@ -134,7 +134,7 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"\b(towers?|torres?|t[uü]rme?|tours?|ct)\b(?!\s*#?\s*\d)", {"tower", "leaving_water", "lw_setpoint", "lw",
                                                                      "approach", "fan_speed", "tower_power",
                                                                      "heat_rejected"}),
-    (r"hottest|warmest|coolest|coldest|\bhighest|\blowest|m[aá]s (caliente|fr[ií]o|alt[oa]|baj[oa])|hei(ß|ss)est"
+    (r"hottest|\bhott[ets]{3}\b|warmest|coolest|coldest|\bhighest|\blowest|m[aá]s (caliente|fr[ií]o|alt[oa]|baj[oa])|hei(ß|ss)est"
      r"|k[aä]ltest|h[oö]chst|niedrigst|plus (chaud|froid|[ée]lev[ée]|bas)", {"ranking"}),
     (r"coolest|coldest|\blowest|\bleast\b|m[aá]s fr[ií]o|m[aá]s baj[oa]|k[aä]ltest|niedrigst|plus froid|plus bas",
      {"lowest"}),
@@ -207,21 +207,23 @@ _UNITS = [(re.compile(p, re.IGNORECASE), unit) for p, unit in (
 _HOURS = re.compile(r"(\d+(?:\.\d+)?)\s*(h|hrs?|hours?|horas?|stunden?|heures?)\b", re.IGNORECASE)
 
 
-def _arg_numbers(calls: list[ToolCall]) -> set[float]:
-    """Every number in the plan's arguments, with the request models' defaults filled in."""
+def _arg_numbers(calls: list[ToolCall], *, time: bool | None = None) -> set[float]:
+    """Every number in the plan's arguments, with the request models' defaults filled in; `time` True: only the
+    time windows (`minutes`), False: only the others, None: all."""
     out: set[float] = set()
 
-    def walk(value: Any) -> None:
+    def walk(value: Any, key: str = "") -> None:
         if isinstance(value, bool):
             return
         if isinstance(value, (int, float)):
-            out.add(round(abs(float(value)), 6))
+            if time is None or time == (key == "minutes"):
+                out.add(round(abs(float(value)), 6))
         elif isinstance(value, (list, tuple)):
             for v in value:
-                walk(v)
+                walk(v, key)
         elif isinstance(value, dict):
-            for v in value.values():
-                walk(v)
+            for k, v in value.items():
+                walk(v, k)
 
     for call in calls:
         spec = registry.TOOLS.get(call.tool)
@@ -232,17 +234,22 @@ def _arg_numbers(calls: list[ToolCall]) -> set[float]:
     return out
 
 
-def _question_numbers(question: str) -> list[tuple[str, set[float]]]:
-    """Numbers the question states (not entity numbers), each with the values a plan may carry for it."""
+_MINUTES = re.compile(r"(\d+(?:\.\d+)?)\s*(min|mins|minutes?|minutos?|minuten?)\b", re.IGNORECASE)
+
+
+def _question_numbers(question: str) -> list[tuple[str, set[float], bool | None]]:
+    """Numbers the question states (not entity numbers), each with the values a plan may carry for it and whether
+    it is a time window (True: it must be a `minutes` argument; None: any argument)."""
     entity_spans = [m.span() for m in semantic.ENTITY.finditer(question)]
     hours = {m.start(1): float(m.group(1)) * 60.0 for m in _HOURS.finditer(question)}
+    minutes = {m.start(1) for m in _MINUTES.finditer(question)}
     out = []
     for m in re.finditer(r"(?<![\w.:])\d+(?:\.\d+)?(?!\s*(?:am|pm|a\.m\.|p\.m\.)\b|:\d)", question):
         if any(a <= m.start() < b for a, b in entity_spans):
             continue
         value = float(m.group(0))
         ok = {round(value, 6)} | ({round(hours[m.start()], 6)} if m.start() in hours else set())
-        out.append((m.group(0), ok))
+        out.append((m.group(0), ok, True if m.start() in minutes or m.start() in hours else None))
     return out
 
 
@@ -313,8 +320,9 @@ def uncovered(question: str, calls: list[ToolCall], facts: list[ChatFact] = ()) 
         missing.append(f"“{OUT_OF_SCOPE.search(question).group(0)}” (no tool knows it)")
     if COMMAND.search(question) and not any(c.tool == "propose_change" for c in calls):
         missing.append("the change asked for")
-    numbers = _arg_numbers(calls)
-    missing += [text for text, ok in _question_numbers(question) if not ok & numbers]
+    numbers, windows = _arg_numbers(calls), _arg_numbers(calls, time=True)
+    missing += [text for text, ok, is_time in _question_numbers(question)
+                if not ok & (windows if is_time and windows else numbers)]  # fmt: skip
     units = {c.args.get("unit") for c in calls}
     missing += [unit for pattern, unit in _UNITS if pattern.search(question) and unit not in units]
     return missing
@@ -359,6 +367,12 @@ class ChatEngine:
             self.second_opinions += 1
             return Plan([], plan.by, f"“{OUT_OF_SCOPE.search(message).group(0)}” is nothing the tools know")
         if plan.by == "rules" or isinstance(self.planner, RulePlanner):
+            return plan
+        if not plan.calls:  # the model found nothing to call: the rules' plan, if they have one, is worth a try
+            alternative = self._rules.plan(message)
+            if alternative.calls and not uncovered(message, alternative.calls):
+                self.second_opinions += 1
+                return Plan(alternative.calls, "rules", f"the {plan.by} plan was empty")
             return plan
         missing = uncovered(message, plan.calls)
         if not missing:

@@ -87,7 +87,8 @@ _QUANTITY_RULES: list[tuple[str, re.Pattern]] = [(k, re.compile(p)) for k, p in 
     ("in_band", r"\b(in|out of|outside|within|inside)\s+(the\s+)?([\d.]+\s*(-|–|to)\s*[\d.]+\s*(°\s*c|degc|c)?\s+)?"
                 r"(compliance\s+)?band\b|\bout[- ]of[- ]band\b"),
     ("lw_setpoint", r"(leaving[- ]?water|\blw\b|tower)\s+(temperature\s+)?(set[- ]?points?|sp\b)"),
-    ("leaving_water", r"leaving[- ]?water|\blw\b|tower water|basin|cold water|tower outlet"),
+    ("leaving_water", r"leaving[- ]?water|\blw\b|tower water|basin|cold water|tower outlet|tower.*\b(warm|hot|cold|cool)"
+                      r"\w* water"),
     ("htw_supply_temp", r"\b(htw|hot[- ]water|facility) supply"),
     ("htw_return_temp", r"\b(htw|hot[- ]water|facility) return"),
     ("fan_speed", r"\bfan speeds?\b"),
@@ -120,17 +121,20 @@ _IMPERATIVE = re.compile(
     r"make|bump|adjust|go)\b"
 )  # fmt: skip
 _WHATIF = re.compile(r"\bwhat (if|would happen|happens|would|will happen)\b|\bsuppose\b|\bif (i|we|you|the operator)\b"
-                     r"|\bpredict|\bhypothetic")  # fmt: skip
+                     r"|\bpredict|\bhypothetic|\bsimulat")  # fmt: skip
 _WHY = re.compile(r"^\s*why\b|\bwhy (did|does|is|was|has|do)\b|\breason\b|\bexplain\b|\bdecisions?\b")
 _DECISION_ID = re.compile(r"\bdecision\s+(?:id\s+)?([a-z0-9][\w-]{3,79})\b")
 _NOT_FROM_HERE = re.compile(r"\bwhen will\b|\btomorrow\b|\bnext (week|month|year)\b|\blast year\b")
 _ENERGY_EXTRA = re.compile(r"\bit heat\b.*\breject")
-_ALERTS = re.compile(r"\balerts?\b|\balarms?\b|\bfaults?\b|\bwarnings?\b|\banomal|\bproblems?\b|\bwrong\b|\bissues?\b")
+_ALERTS = re.compile(r"\balerts?\b|\balarms?\b|\bfaults?\b|\bwarnings?\b|\banomal|\bproblems?\b|\bwrong\b|\bissues?\b"
+                     r"|\bflag(s|ged|ging)?\b")
 _AGENTS = re.compile(r"\bagents?\b|\bservices?\b|\bprocess(es)?\b|\bmesh\b|\bhealthy\b|\bhealth\b")
 _CONTROLLER = re.compile(r"\bcontroll(er|ers|ing)\b|\bpolicy\b|\bmode\b|\bwho (is )?controls?\b|\bwhich (policy|agent) "
-                         r"decides\b|\bsince when\b|\bhow long ha(s|ve)\b")  # fmt: skip
+                         r"decides\b|\bsince when\b|\bhow long ha(s|ve)\b|\bwho changed\b|\bconfig(uration)? "
+                         r"(change|history)")  # fmt: skip
 _ENERGY = re.compile(r"\b(energy|heat|power) balance\b|\b(heat|rejected|rejecting|rejects?)\b.*\b(vs\.?|versus|against|"
-                     r"compared (to|with)|relative to)\b.*\b(it|load|compute)\b|\bheat in\b.*\bheat out\b")  # fmt: skip
+                     r"compared (to|with)|relative to)\b.*\b(it|load|compute)\b|\bheat in\b.*\bheat out\b"
+                     r"|\bcooling overhead\b")  # fmt: skip
 _BAND = re.compile(r"\bhow many\b.*\b(band|above|below|over|under|outside|too hot|too cold)\b|"
                    r"\b(count|number of)\b.*\b(blade|band)|\b(out of|outside|in|inside|within) (the )?([\d.]+\s*"
                    r"(-|–|to)\s*[\d.]+\s*(°\s*c|degc|c)?\s+)?(compliance )?band\b|\bout[- ]of[- ]band\b")  # fmt: skip
@@ -140,11 +144,11 @@ _STATS = {"mean": re.compile(r"\b(average[ds]?|mean|avg)\b"), "max": re.compile(
           "min": re.compile(r"\b(min(imum)?|lowest)\b")}  # fmt: skip
 _TIME = re.compile(r"\bago\b|\b(last|past|previous)\b|\bsince\b|\btrend|\bvs\.?\b|\bversus\b|\bcompared?\b|\bearlier\b"
                    r"|\bbefore\b|\bchanged?\b")  # fmt: skip
-_RANK = re.compile(r"\b(rank(ed)?|top \d+|hottest|warmest|coolest|coldest|highest|lowest|most|least|max(imum)?|"
+_RANK = re.compile(r"\b(rank(ed)?|top \d+|hottest|hott[ets]{3}|warmest|coolest|coldest|highest|lowest|most|least|max(imum)?|"
                    r"min(imum)?|biggest|smallest|largest|worst|best)\b")  # fmt: skip
 _LOW_WORDS = re.compile(r"\b(coolest|coldest|lowest|least|min(imum)?|smallest|best)\b")
 _STATE = re.compile(r"\bnow\b|\bcurrent(ly)?\b|\bstate\b|\bstatus\b|\boverview\b|\bsummary\b|\bhow (is|are)\b"
-                    r"|\bhow'?s\b")
+                    r"|\bhow'?s\b|\bsituation\b")
 
 # a number may touch its unit ("15min"); a word number needs a space ("an hour"), so "and" is not "an" + "d"
 _WINDOW = re.compile(r"(?:(?<![\w.])(\d+(?:\.\d+)?)\s*|\b(an?|one|half an?|two|three|six|twelve)\s+)"
@@ -437,10 +441,7 @@ def classify(text: str) -> Intent:
     ops = ops_intent(t)
     if ops is not None:
         return ops
-    from lcmesh.mesh.agents.ui.language import detect_language
-
-    if detect_language(t) != "en":
-        t = english_gloss(t)
+    t = english_gloss(t)  # no English word the rules read is changed by it; a short "Passe en mode manuel" reads as en
     quantity = find_quantity(t)
     cabinet, branch, tower = _index(t, "cabinet"), _index(t, "branch"), _index(t, "tower")
     window_s, window_text = find_window(t)

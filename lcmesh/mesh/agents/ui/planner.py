@@ -25,7 +25,7 @@ import logging
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from string import Template
 from typing import Any, Literal, Protocol
@@ -34,7 +34,7 @@ from pydantic import BaseModel, ValidationError
 
 from lcmesh.llm.budget import Clock
 from lcmesh.llm.io_format import load_template
-from lcmesh.mesh.agents.ui.intents import Intent, classify
+from lcmesh.mesh.agents.ui.intents import Intent, classify, find_change, normalize
 from lcmesh.mesh.tools.plant_data import (
     AgentsRequest, AlertsRequest, BandRequest, CompareRequest, ControllerRequest, DecisionRequest, EnergyRequest,
     HistoryRequest, OverviewRequest, ProposeRequest, RankRequest, StateRequest, WhatIfSetpointRequest,
@@ -269,7 +269,9 @@ def intent_calls(intent: Intent) -> list[ToolCall]:
         args = _change_args(intent)
         if args is None or "value" in args:
             return []  # a what-if needs a change by an amount
-        return [ToolCall("whatif_setpoint", {**args, **({"cabinet": intent.cabinet} if intent.cabinet else {})})]
+        minutes = {"minutes": round(intent.window_s / 60.0, 4)} if intent.window_s and intent.window_s != 60.0 else {}
+        return [ToolCall("whatif_setpoint", {**args, **({"cabinet": intent.cabinet} if intent.cabinet else {}),
+                                             **minutes})]  # fmt: skip
     if kind == "command":
         return _command_calls(intent)
     return _ops_calls(intent)
@@ -297,7 +299,8 @@ def _ops_calls(intent: Intent) -> list[ToolCall]:
 
 def _command_calls(intent: Intent) -> list[ToolCall]:
     if intent.controller:
-        return [ToolCall("propose_change", {"controller": intent.controller})]
+        return [ToolCall("propose_change", {"controller": intent.controller, **({"mode": intent.mode} if intent.mode
+                                                                                 else {})})]  # fmt: skip
     if intent.mode:
         return [ToolCall("propose_change", {"mode": intent.mode})]
     args = _change_args(intent)
@@ -332,8 +335,17 @@ class RulePlanner:
             from lcmesh.mesh.agents.ui.chat import uncovered
 
             combined: list[ToolCall] = []
-            for part in parts:
-                combined += [c for c in _checked(intent_calls(classify(part))) if c not in combined]
+            previous = None
+            for part in parts:  # a part without a quantity or entity of its own ("and propose raising it") borrows them
+                intent = classify(part)
+                if previous is not None:
+                    borrowed = {k: getattr(previous, k) for k in ("quantity", "cabinet", "tower")
+                                if getattr(intent, k) is None and getattr(previous, k) is not None}
+                    if intent.kind == "command" and "quantity" in borrowed and intent.change is None:
+                        intent = replace(intent, change=find_change(normalize(part), borrowed["quantity"]))
+                    intent = replace(intent, **borrowed)
+                previous = intent
+                combined += [c for c in _checked(intent_calls(intent)) if c not in combined]
             missing, whole = len(uncovered(question, combined[:MAX_CALLS])), len(uncovered(question, calls))
             if combined and (missing < whole or (missing == whole and len(combined) > len(calls))):
                 calls = combined[:MAX_CALLS]
