@@ -404,5 +404,9 @@ class ChatAnswer(BaseModel):
     planned_by: str = Field("rules", description="llm, openai or rules (the regex fallback)")
     plan_note: str | None = None
     refused: bool = False
+    declined: bool = Field(False, description="the question asks for something the results do not give (energy, not "
+                           "power; a gap, not a value; blade groups, not cabinets; where or when ...): the answer "
+                           "says so and offers what it found as what it can give instead; never grounded")
+    missing: list[str] = Field([], description="what the question asks for that the results do not give")
     problems: list[ChatProblem] = []
     lang: str = "en"

@@ -346,11 +346,15 @@ $("mode-form").addEventListener("submit", async (e) => {
 
 // --- chat -------------------------------------------------------------------------------------------------
 function showAnswer(d) {
-  const box = el("div", { class: "chat-answer" });
+  const box = el("div", { class: d.declined ? "chat-answer declined" : "chat-answer" });
   box.append(el("div", { class: "answer-text" }, d.answer));
+  if (d.declined) {  // an answer to a neighbouring question is not shown as the answer
+    box.append(el("div", { class: "muted declined-note" }, `not an answer: the question asks for ${(d.missing || []).join(", ")}`));
+  }
   if (d.facts && d.facts.length) {
     const det = el("details");
-    const about = [`${d.facts.length} fact(s)`, d.intent, d.phrased_by, `${fmt(d.elapsed_ms, 0)} ms`];
+    const about = [`${d.facts.length} fact(s)`, d.intent, `planned by ${d.planned_by}`, d.phrased_by,
+      d.grounded ? "grounded" : "not grounded", `${fmt(d.elapsed_ms, 0)} ms`];
     det.append(el("summary", { class: "muted" }, about.filter(Boolean).join(" · ")));
     const ul = el("ul", { class: "facts" });
     d.facts.forEach((f) => ul.append(el("li", {}, `${f.name} = ${f.display} (${f.text}; ${f.source})`)));
