@@ -24,13 +24,15 @@ def bench_chat(
     live: Annotated[int, typer.Option(help="instead: start the demo mesh and ask this many test questions through "
                                       "its REST API; who planned each answer and its latency", min=0)] = 0,
     controller: Annotated[Optional[str], typer.Option(help="--live: the demo's controller (default: the demo's)")] = None,
+    speed: Annotated[Optional[float], typer.Option(help="--live: the demo's speed factor (default: the demo's)",
+                                                   min=0.1, max=1000)] = None,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
     if live:
         from lcmesh.bench.api import render_live_planner, run_live_planner
 
         with console.status("live demo") as status:
-            result = run_live_planner(live, controller=controller, say=lambda m: status.update(m))
+            result = run_live_planner(live, controller=controller, speed_factor=speed, say=lambda m: status.update(m))
         write_bench(json_out, markdown, "chat-live", result, render=render_live_planner)
         return
     from lcmesh.bench import chat

@@ -553,3 +553,69 @@ FUNCTION_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
 def function_words(kind: str) -> tuple[str, ...]:
     """One kind of function word ("and", "or", "not", "if", "would", "but") in the four languages."""
     return _all(FUNCTION_WORDS[kind])
+
+
+# --- what a question asks for (the chat's question check, lcmesh/mesh/agents/ui/chat.py uncovered()) ----------------
+# Words in a question that name something the answer must address; a plan that covers none of their concepts
+# answers another question, and its answer is not marked grounded (the reply says what may be missing).
+QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.IGNORECASE), frozenset(c)) for p, c in (
+    (r"\bpue\b", {"pue"}),
+    (r"\bapproach|aproximaci[oó]n|ann[aä]herung|\bapproche", {"approach"}),
+    (r"wet[- ]?bulb|bulbo h[uú]medo|feuchtkugel|bulbe humide", {"wet_bulb"}),
+    (r"\bvalves?\b|v[aá]lvula|\bventil(e|s)?\b|\bventil(anteil|stellung)|\bvanne", {"valve"}),
+    (r"\bdp\b|differential pressure|presi[oó]n|druck|pression", {"dp", "dp_setpoint"}),
+    (r"\bflows?\b|caudal|durchfluss|d[ée]bit", {"flow"}),
+    (r"\breturn\b|retorno|r[uü]cklauf|\bretour", {"return_temp", "htw_return_temp"}),
+    (r"\balert|\balarm|\bfaults?\b|st[oö]rung|warnung|alerte|\bflag", {"alerts"}),
+    (r"(?<!maintenance )\bagents?\b|\bservices?\b|agentes?\b|dienste", {"agents"}),
+    (r"controller|\bpolicy\b|\bregler|controlador|contr[oô]leur", {"controller"}),
+    (r"reject|rechaz|abgegeben|\brejet", {"heat_rejected"}),
+    (r"leaving[- ]water|\blw\b|\bbasin\b", {"leaving_water", "lw_setpoint", "lw"}),
+    (r"(?<!hot[- ])(?<!hot)\bwater\b", {"leaving_water", "lw_setpoint", "lw", "htw_supply_temp", "htw_return_temp"}),
+    (r"\b(last|past|previous)\s+(\d+\s*)?(min|mins|minutes?|hours?|h|hrs?|days?)\b|\bago\b|\bhace\b|\bvor\s+\d"
+     r"|\bil y a\b|[uú]ltima hora|[uú]ltimos \d+|letzten (stunde|\d+)|derni[eè]re heure|derni[eè]res \d+", {"history"}),
+    (r"\bband\b|\bbanda\b|\bbande\b|compliance", {"in_band"}),
+    (r"\bsu[p]{1,2}ly|impulsi[oó]n|vorlauf|\bd[ée]part\b", {"supply", "supply_temp", "supply_setpoint"}),
+    (r"\b(towers?|torres?|t[uü]rme?|tours?|ct)\b(?!\s*#?\s*\d)", {"tower", "leaving_water", "lw_setpoint", "lw",
+                                                                     "approach", "fan_speed", "tower_power",
+                                                                     "heat_rejected"}),
+    (r"hottest|\bhott[ets]{3}\b|warmest|coolest|coldest|\bhighest|\blowest|m[aá]s (caliente|fr[ií]o|alt[oa]|baj[oa])|hei(ß|ss)est"
+     r"|k[aä]ltest|h[oö]chst|niedrigst|plus (chaud|froid|[ée]lev[ée]|bas)", {"ranking"}),
+    (r"coolest|coldest|\blowest|\bleast\b|m[aá]s fr[ií]o|m[aá]s baj[oa]|k[aä]ltest|niedrigst|plus froid|plus bas",
+     {"lowest"}),
+    (r"\bmanual\b|\bmanuel\b|\bmanuell\b|\bauto(matic)?\s+mode|\bmodo\b|\bmodus\b", {"mode"}),
+    (r"what (if|would happen)|\bsuppose\b|\bsimulat|qu[eé] pasar[ií]a|was w[aä]re|was passiert,? wenn"
+     r"|que se passerait|\bet si\b", {"whatif"}),
+    # the kind of quantity: energy (kWh over a window) is not power now
+    (r"\b(energ(y|[ií]a|ie)|[ée]nergie)\b(?!\s*(balance|efficiency|bilanz|bilan|-?effizienz))|\bkwh\b|\bconsum"
+     r"|\bverbrauch|\bconsomm", {"energy"}),
+    # "where" and "when" ask for a place and a time, not only a value
+    (r"\bwhere\b|\bd[oó]nde\b|\bwo\b|\bwhich (cabinet|branch|tower|blade|cdu)|(?<!\w)où(?!\w)", {"where"}),
+    (r"\bwhen\b|what time|\bcu[aá]ndo\b|qu[eé] hora|\bwann\b|wie viel uhr|\bquand\b|quelle heure", {"when"}),
+    (r"how many|\bcu[aá]nt[oa]s\b|wie viele|\bcombien\b", {"count"}),
+    (r"\bweather\b|\bclima\b|\bwetter\b|\bm[ée]t[ée]o\b", {"weather"}),
+)]  # fmt: skip
+# Two words together name what the answer must be: a setpoint-tracking gap, blade groups ranked (not cabinets).
+PAIRED_CONCEPTS: list[tuple[re.Pattern, re.Pattern, frozenset[str]]] = [
+    (re.compile(p, re.IGNORECASE), re.compile(q, re.IGNORECASE), frozenset(c)) for p, q, c in (
+        (r"\bgaps?\b|deviat|\boff\b|\bfar\b|differ|\btrack|abweich|[ée]cart|desviac|unterschied|distance",
+         r"set[- ]?points?|consigna|sollwert|consigne", {"gap"}),
+        (r"blade[- ]?groups|\bbranches\b|grupos de blades|\bramas\b|blade-gruppen|\bzweige\b|groupes de lames",
+         r"hottest|warmest|coolest|coldest|highest|lowest|\btop\b|\blist\b|rank|m[aá]s (caliente|fr[ií])|"
+         r"hei(ß|ss)est|k[aä]ltest|plus (chaud|froid)", {"branch_level"}),
+    )]  # fmt: skip
+SETPOINT_WORD = re.compile(r"set[- ]?points?|\bsp\b|consignas?|sollwerte?s?|consignes?", re.IGNORECASE)
+MEASURED_WORD = re.compile(r"\bmeasured|\bactual\b|gemessen|medid[oa]|mesur[ée]|\breal\b", re.IGNORECASE)
+MISSING_WORDS: dict[str, dict[str, str]] = {
+    "energy": {"en": "energy over a time (kWh)", "es": "energía en un periodo (kWh)", "de": "Energie über eine Zeit "
+               "(kWh)", "fr": "l'énergie sur une durée (kWh)"},
+    "where": {"en": "where", "es": "dónde", "de": "wo", "fr": "où"},
+    "when": {"en": "when", "es": "cuándo", "de": "wann", "fr": "quand"},
+    "count": {"en": "how many", "es": "cuántos", "de": "wie viele", "fr": "combien"},
+    "gap": {"en": "the gap to the setpoint", "es": "la diferencia con la consigna", "de": "die Abweichung vom "
+            "Sollwert", "fr": "l'écart à la consigne"},
+    "branch_level": {"en": "blade groups (not cabinets)", "es": "grupos de blades (no gabinetes)",
+                     "de": "Blade-Gruppen (nicht Schränke)", "fr": "groupes de lames (pas armoires)"},
+    "history": {"en": "a time window", "es": "un periodo de tiempo", "de": "einen Zeitraum", "fr": "une période"},
+    "weather": {"en": "the weather", "es": "el clima", "de": "das Wetter", "fr": "la météo"},
+}  # fmt: skip
