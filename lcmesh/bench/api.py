@@ -240,7 +240,7 @@ __all__ = ["run_bench_api", "render_api", "state_load", "chat_latency"]
 
 
 def run_live_planner(n_questions: int = 40, *, controller: str | None = None, speed_factor: float | None = None,
-                     say: Callable[[str], None] = print) -> dict:  # fmt: skip
+                     hold_minutes: float = 0.0, say: Callable[[str], None] = print) -> dict:  # fmt: skip
     """The demo mesh as `lcmesh demo` runs it (default speed and controller, the UI's default planner: the local
     LLM), real processes on loopback; ``n_questions`` of the chat benchmark's test split asked through
     ``POST /api/chat`` one after another. Who planned each answer (the ``planned_by`` of the reply) and its
@@ -284,6 +284,10 @@ def run_live_planner(n_questions: int = 40, *, controller: str | None = None, sp
                 body = r.json() if r.headers.get("content-type", "").startswith("application/json") else {}
                 rows.append({"id": q.id, "lang": q.lang, "status": r.status_code, "seconds": seconds,
                              "planned_by": str(body.get("planned_by", "?")), "note": body.get("plan_note")})  # fmt: skip
+            until = time.monotonic() + hold_minutes * 60.0  # the mesh runs on, for the controller's own count
+            while time.monotonic() < until:
+                say(f"holding the mesh: {max(0.0, until - time.monotonic()) / 60.0:.1f} min left")
+                time.sleep(min(10.0, max(0.0, until - time.monotonic())))
             state = http.get("/api/state").json()  # who decided the controller's actions meanwhile
             result["controller_state"] = state.get("controller")
             result["plant_steps"] = state.get("step")

@@ -81,9 +81,13 @@ FRESH = "fresh.jsonl"  # issue 24: a fresh test part, written on the test decisi
 # the judge's code, its earlier texts or their misses; never tuned on
 
 
-def load_fresh(folder: Path = CORPUS) -> list[dict]:
-    """The fresh test part's labelled texts (split "fresh"; their records are the corpus's test records)."""
-    path = folder / FRESH
+FRESH_DEV = "fresh_dev.jsonl"  # its tuning twin: the same kinds of texts by another outside author, on dev decisions
+
+
+def load_fresh(folder: Path = CORPUS, name: str = FRESH) -> list[dict]:
+    """A fresh part's labelled texts: ``fresh.jsonl`` (split "fresh", on the test records: evidence, never tuned on)
+    or ``fresh_dev.jsonl`` (split "fresh_dev", on the dev records: what the judge may be tuned on)."""
+    path = folder / name
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
 
 
@@ -99,7 +103,8 @@ def corpus_verdict(split: str, folder: Path = CORPUS, cfg=None) -> dict:
     """Per flag kind precision and recall over one part (``dev`` or ``test``) of the corpus, recall per planted
     error kind and per style, and the share of correct texts that get any flag."""
     records, texts = load_corpus(folder)
-    part = load_fresh(folder) if split == "fresh" else [t for t in texts if t["split"] == split]
+    fresh = {"fresh": FRESH, "fresh_dev": FRESH_DEV}
+    part = load_fresh(folder, fresh[split]) if split in fresh else [t for t in texts if t["split"] == split]
     rows = []
     t0 = time.perf_counter()
     for t in part:
