@@ -7,6 +7,7 @@ module compiles them into the patterns of docs/explanations.md ("Evaluator rules
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass
 
@@ -68,10 +69,63 @@ _SHORTHAND: list[tuple[re.Pattern, str]] = [
     (re.compile(r"\b(setpoint|valve)\s+(?:dn|down)\b", I), r"\1 lowered"),
     (re.compile(r"\b(setpoint|valve)\s+(?:hold)\b", I), r"\1 held"),
     (re.compile(r"\b(hottest|coolest|warmest|coldest|most[ -]loaded|least[ -]loaded|most[ -]opened|widest)"
-                r"\s+branch\s*[:=]\s*(\d+)\b", I), r"\1 branch: branch \2"),
+                r"(?:\s+branch)?\s*[:=]\s*(?:branch\s*)?(\d+)\b(?![.,]\d)", I), r"\1 branch: branch \2"),
     (re.compile(r"\s+\|\s+|\s{2,}(?=\S)"), "; "),  # log fields
     (re.compile(r"\)\s+(?=branch\s+\d)"), "); "),
 ]
+
+
+# a comma between digits is a decimal comma ("31,69 °C", "0,33") unless three digits follow it ("1,000 kW": thousands)
+# or it continues an index list ("ramas 1,2"); lc-mesh writes "." in every language, other writers do not
+_DECIMAL_COMMA = re.compile(r"(?<![\d,.])(\d+),(?=(?:\d{1,2}|\d{4,})(?!\d|,\d))")
+_INDEX_BEFORE = re.compile(r"\b(?:" + "|".join(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang])
+                           + r")\s*$", I)
+_KV_PAIR_GAP = re.compile(r"\s+(?=[A-Za-z][\w.-]*\s*=)")  # "valve1=0.33 valve1_change=held": one field each
+_GENERIC_HEADERS = re.compile(r"^(?:value|now|current|new|valor|wert|valeur|actual)$", I)
+
+
+def _decimal_commas(text: str) -> str:
+    def repl(m: re.Match) -> str:
+        if m.group(1) != "0" and _INDEX_BEFORE.search(text[max(0, m.start() - 20) : m.start()]):
+            return m.group()
+        return m.group(1) + "."
+
+    return _DECIMAL_COMMA.sub(repl, text)
+
+
+def _flatten_json(text: str) -> str:
+    """A JSON object in the text becomes one "key: values." line per object holding values (nested keys joined),
+    so "valve_2": "0.25 -> 0.26 (opened)" and {"now": 0.29, "was": 0.31, "change": "closed"} read as sentences."""
+    a, z = text.find("{"), text.rfind("}")
+    if a < 0 or z < a:
+        return text
+    try:
+        data = json.loads(text[a : z + 1])
+    except ValueError:
+        return text
+    if not isinstance(data, dict):
+        return text
+    lines: list[str] = []
+
+    def walk(obj: dict, path: list[str]) -> None:
+        leaves = [(k, ", ".join(map(str, v)) if isinstance(v, list) else v) for k, v in obj.items()
+                  if not isinstance(v, dict) and not (isinstance(v, list) and any(isinstance(x, (dict, list)) for x in v))]
+        change = [str(v) for k, v in leaves if k.lower() in ("change", "direction")]
+        cells = [str(v) if _GENERIC_HEADERS.match(k) else f"{k} {v}" for k, v in leaves
+                 if k.lower() not in ("change", "direction")]  # fmt: skip
+        if path and cells:
+            lines.append(f"{' '.join(path)}: {', '.join(cells)}{f' ({change[0]})' if change else ''}.")
+        elif not path:
+            lines.extend(f"{k}: {v}." for k, v in leaves)
+        for k, v in obj.items():
+            if isinstance(v, dict):
+                walk(v, path + [k])
+
+    walk(data, [])
+    head = text[:a].rstrip().rstrip("-> :=").rstrip()
+    head = re.sub(r"```\w*\s*$", "", head).rstrip()
+    tail = re.sub(r"^\s*```", "", text[z + 1 :])
+    return "\n".join(x for x in (head + ("." if head and not head.endswith((".", ":")) else ""), *lines, tail) if x)
 
 
 def normalize(text: str) -> str:
@@ -80,6 +134,7 @@ def normalize(text: str) -> str:
     out (``supply_sp`` -> supply setpoint, ``b2=`` -> branch 2 valve, arrows -> raised / lowered). Prose
     without these shapes is returned unchanged."""
     out, header = [], None
+    text = _flatten_json(_decimal_commas(text))
     for line in text.splitlines():
         s = line.strip()
         if len(s) > 1 and s.startswith("|") and s.endswith("|"):
@@ -89,12 +144,14 @@ def normalize(text: str) -> str:
             if header is None:
                 header = cells
                 continue
-            line = _row(cells)
+            line = _row(cells, header)
         else:
             header = None
         if not s or heading_of(line) is not None:
             out.append(line)
             continue
+        if len(re.findall(r"[A-Za-z][\w.-]*\s*=", line)) >= 3:
+            line = _KV_PAIR_GAP.sub("; ", line.strip())
         for pattern, repl in _SHORTHAND:
             line = pattern.sub(repl, line)
         m = _KV_LINE.match(line)
@@ -104,12 +161,26 @@ def normalize(text: str) -> str:
     return "\n".join(out)
 
 
-def _row(cells: list[str]) -> str:
-    """A table row as "first cell: other cells (last cell)" when the last cell is a change word."""
-    cells = [c for c in cells if c]
-    if len(cells) >= 3:
-        return f"{cells[0]}: {', '.join(cells[1:-1])} ({cells[-1]})."
-    return ": ".join(cells) + "."
+def _row(cells: list[str], header: list[str]) -> str:
+    """A table row as "first cell: other cells (last cell)", each other cell named by its column's header ("Branch 1:
+    blade temp 33.1 °C, valve 0.33 (held)"; "value", "now" ... name nothing); an index in the first cell takes the
+    first header's name ("1" under "Branch"), a name takes it after it ("CDU supply" under "Setpoint")."""
+    named = []
+    for i, c in enumerate(cells):
+        h = header[i] if i < len(header) else ""
+        if not c or c in ("—", "-", "–"):
+            continue
+        if i == 0:
+            if re.fullmatch(r"\d+", c) and h:
+                c = f"{h} {c}"
+            elif h and not _GENERIC_HEADERS.match(h) and h.lower().rstrip("s") not in c.lower():
+                c = f"{c} {h.lower()}"
+        elif h and not _GENERIC_HEADERS.match(h) and i < len(cells) - 1 and h.lower() not in c.lower():
+            c = f"{h} {c}"
+        named.append(c)
+    if len(named) >= 3:
+        return f"{named[0]}: {', '.join(named[1:-1])} ({named[-1]})."
+    return ": ".join(named) + "."
 
 
 # --- sections and sentences -------------------------------------------------------------------
