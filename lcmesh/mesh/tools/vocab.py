@@ -210,6 +210,7 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "innerhalb des": ("in_band", "inside", "total", "band_low", "band_high"), "energie": _ENERGY,
     # fr
     "départ": ("supply_temp", "supply_setpoint", "supply"), "consigne de départ": ("supply_setpoint", "supply"),
+    "alimentation": ("supply_temp", "supply_setpoint", "supply"), "consigne d'alimentation": ("supply_setpoint", "supply"),
     "consigne de température de départ": ("supply_setpoint", "supply"),
     "retour": ("return_temp",), "pression différentielle": ("dp", "dp_setpoint"), "débit": ("flow",),
     "vanne": ("valve",), "vitesse de pompe": ("pump_speed",), "pompe": ("pump_power", "cdu_pump_power"),
@@ -324,12 +325,12 @@ _SHARE_EN = r"\s+(?:\w+\s+)?(?:flow|coolant|share|fraction|opening)"
 SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     # the valves split equally
     "equal": {"en": (r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
-                     "same (?:fraction|opening|share)"),
+                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each"),
               "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*"),
               "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales")},
-    "each": {"en": ("each", "every", "all"), "es": ("cada", "todas", "todos"), "de": (r"jede[nrs]?", "alle"),
-             "fr": ("chaque", "toutes", "tous")},
+    "each": {"en": ("each", "every", "all"), "es": ("cada", "todas", "todos"), "de": (r"jede[nrs]?", "alle", "je"),
+             "fr": ("chaque", "chacune?", "toutes", "tous")},
     # "its valve ...": the branch the previous sentence was about
     "its": {"en": ("it", "its"), "es": ("su", "sus"), "de": (r"sein\w*", r"ihr\w*"), "fr": ("son", "sa", "ses")},
     # "more flow", "a larger share", "less coolant"

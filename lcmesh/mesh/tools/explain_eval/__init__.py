@@ -151,6 +151,8 @@ def _branch_at(ctx: Context, pos: int) -> int | None:
             if after and (after[0].group < 0 or sum(x.group == after[0].group for x in ctx.branches) == 1):
                 return ctx.entity(after[0])
             this = next((m for m in ctx.numbers if m.start == pos), None)
+            if this is not None and _opens_list(ctx, this):
+                return None  # "the loads are 3.0 kW, 84.7 kW, 15.3 kW": a list of values, one per branch
             for b in ctx.branches_in(s.start, s.end):
                 a, z = ctx.span_of(b, s)
                 group = [x for x in ctx.branches if b.group >= 0 and x.group == b.group]
@@ -170,6 +172,18 @@ def _branch_at(ctx: Context, pos: int) -> int | None:
 # a number is not said of a branch named before a clause break or before another quantity's name
 _ATTRIBUTION_BREAK = re.compile(r";|\||\b(?:while|whereas|but)\b|" + _TOPIC_NAMES.pattern.split("|(?P<other>")[0],
                                 re.IGNORECASE)  # fmt: skip
+
+
+_LIST_GAP = re.compile(r"\s*(?:,|,?\s*and|/|;)?\s*")
+
+
+def _opens_list(ctx: Context, m) -> bool:
+    """True when the next number is of the same kind and joined to ``m`` only by a comma, "and" or a slash."""
+    later = [x for x in ctx.numbers if x.start > m.start]
+    if not later or _kind(later[0]) != _kind(m):
+        return False
+    end = m.unit_end if m.unit_end > 0 else m.end
+    return bool(_LIST_GAP.fullmatch(ctx.rec.text, end, later[0].start))
 
 
 def _kind(m) -> str:
