@@ -116,6 +116,17 @@ def key_values(tool: str, args: dict, result: dict, question: str = "") -> list[
         return [str(v) for v in result["body"].values()]
     if tool == "whatif_setpoint":
         return [_shown(result["predicted"]["hottest_blade_c"], "degC")]
+    if tool == "energy_used":
+        return [_shown(result["kwh"], "kWh")]
+    if tool == "tracking_gap":
+        return [result["largest"], _shown(abs(result["largest_gap_k"]), "K")]
+    if tool == "peak":  # the value, where (unless plant-wide) and when (the time of day it happened)
+        where = [] if result["entity"] == "plant" else [result["entity"]]
+        return [_shown(result["value"], unit), *where, result["at"][11:19]]
+    if tool == "weather_effect":
+        return [_shown(result["wet_bulb_c"], "degC"), _shown(result["fan_power_kw"], "kW")]
+    if tool == "whatif_controller":
+        return [_shown(result["current"]["cooling_kwh"], "kWh"), _shown(result["alternative"]["cooling_kwh"], "kWh")]
     return []
 
 

@@ -594,12 +594,15 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"\bwhere\b|\bd[oó]nde\b|\bwo\b|\bwhich (cabinet|branch|tower|blade|cdu)|(?<!\w)où(?!\w)", {"where"}),
     (r"\bwhen\b|what time|\bcu[aá]ndo\b|qu[eé] hora|\bwann\b|wie viel uhr|\bquand\b|quelle heure", {"when"}),
     (r"how many|\bcu[aá]nt[oa]s\b|wie viele|\bcombien\b", {"count"}),
-    (r"\bweather\b|\bclima\b|\bwetter\b|\bm[ée]t[ée]o\b", {"weather"}),
+    (r"\bweather\b|\bclima\b|\bwetter\b|\bm[ée]t[ée]o\b|(wet[- ]?bulb|bulbo|feuchtkugel|bulbe)\b.*\b(effect|affect|"
+     r"impact|influen|efecto|afecta|wirkung|einfluss|auswirk|effet)|\b(effect|affect|impact|influen|efecto|afecta|"
+     r"wirkung|einfluss|auswirk|effet)\w*\b.*(wet[- ]?bulb|bulbo|feuchtkugel|bulbe)", {"weather"}),
 )]  # fmt: skip
 # Two words together name what the answer must be: a setpoint-tracking gap, blade groups ranked (not cabinets).
 PAIRED_CONCEPTS: list[tuple[re.Pattern, re.Pattern, frozenset[str]]] = [
     (re.compile(p, re.IGNORECASE), re.compile(q, re.IGNORECASE), frozenset(c)) for p, q, c in (
-        (r"\bgaps?\b|deviat|\boff\b|\bfar\b|differ|\btrack|abweich|[ée]cart|desviac|unterschied|distance",
+        (r"\bgaps?\b|deviat|\boff\b|\bfar\b|f[au]rthest|further|away from|differ|\btrack|abweich|[ée]cart|desviac|"
+         r"unterschied|distance|lejos|entfernt|loin",
          r"set[- ]?points?|consigna|sollwert|consigne", {"gap"}),
         (r"blade[- ]?groups|\bbranches\b|grupos de blades|\bramas\b|blade-gruppen|\bzweige\b|groupes de lames",
          r"hottest|warmest|coolest|coldest|highest|lowest|\btop\b|\blist\b|rank|m[aá]s (caliente|fr[ií])|"
