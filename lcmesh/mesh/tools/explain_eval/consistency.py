@@ -6,7 +6,9 @@
   contradicts the plant: a lower supply setpoint or more flow warming the blades, a higher leaving-water
   setpoint costing fan power, less flow costing pump power, tower water below the wet bulb.
 - bounds: valve fractions outside [0, 1] or not summing to 1, setpoints outside ``EvalConfig.bounds``,
-  a leaving-water setpoint below the wet bulb, a branch that does not exist, a fraction over 1 in text.
+  a leaving-water setpoint below the wet bulb, a branch that does not exist, a fraction over 1 in text;
+  the same limits on the action as the text states it (a setpoint named as such, the valve fractions it gives
+  every branch, "all four branches").
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 
 from lcmesh.mesh.tools.explain_eval import text as tx
 from lcmesh.mesh.tools.explain_eval.claims import Context, Flag, direction_claims
+from lcmesh.mesh.tools.explain_eval.grounding import _CLAUSE_END, DIFF_CUE, _topic_of
 from lcmesh.mesh.tools.explain_eval.numbers import K0, PSI_TO_PA
 
 
@@ -247,4 +250,120 @@ def check_bounds(ctx: Context) -> list[Flag]:
                 if over or (m.unit in ("", "%") and m.value < 0):
                     flags.append(("out_of_bounds", f"'{m.text}{'%' if m.unit == '%' else ''}' in '{c.text.strip()}'"
                                                    " is not a valid valve fraction"))  # fmt: skip
+    return flags + _stated_setpoints(ctx) + _stated_valves(ctx) + _stated_branch_count(ctx)
+
+
+def _stated_setpoints(ctx: Context) -> list[Flag]:
+    """A temperature named as the supply or leaving-water setpoint (grounding's naming rule) or a pressure in a
+    clause naming the dp, outside its range (or, for the leaving water, below the record's wet bulb)."""
+    b, flags = ctx.cfg.bounds, []
+    wet_bulb_c = None if ctx.rec.wet_bulb_k is None else ctx.rec.wet_bulb_k - K0
+    for m in ctx.numbers:
+        if m.role != "measure" or _CHANGE_BEFORE.search(ctx.rec.text, max(0, m.start - 12), m.start):
+            continue  # "raised by 0.2 °F" is a change, not a setpoint
+        if _unit_mixup(ctx, m):
+            continue  # "25.2 °F" where the data has 25.2 °C: grounding reports the confused unit
+        quote = ctx.rec.text[m.start : m.unit_end if m.unit_end > 0 else m.end]
+        if m.unit in ("degC", "degF"):
+            c = next(x for q, x, _ in m.interpretations if q == "temp_abs") - K0
+            ulp = m.half_ulp * (5 / 9 if m.unit == "degF" else 1.0) + 1e-6  # "64.4 °F" is the 18 °C edge, as written
+            topic = _topic_of(ctx.rec.text, m)
+            if topic == "supply_setpoint" and not b.supply_setpoint_c[0] - ulp <= c <= b.supply_setpoint_c[1] + ulp:
+                flags.append(("out_of_bounds", f"'{quote}' is given as the supply setpoint, outside "
+                                               f"[{b.supply_setpoint_c[0]:g}, {b.supply_setpoint_c[1]:g}] °C"))
+            elif topic == "lw_setpoint" and not b.lw_setpoint_c[0] - ulp <= c <= b.lw_setpoint_c[1] + ulp:
+                flags.append(("out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, outside "
+                                               f"[{b.lw_setpoint_c[0]:g}, {b.lw_setpoint_c[1]:g}] °C"))
+            elif topic == "lw_setpoint" and wet_bulb_c is not None and c < wet_bulb_c - ulp:
+                flags.append(("out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, below the "
+                                               f"{wet_bulb_c:.1f} °C wet bulb"))  # fmt: skip
+        elif any(q == "pressure" for q, _, _ in m.interpretations) and m.unit:
+            psi = next(x for q, x, _ in m.interpretations if q == "pressure") / PSI_TO_PA
+            names = list(tx.DP.finditer(_clause_before(ctx, m.start)))
+            between = _clause_before(ctx, m.start)[names[-1].end() :] if names else ""
+            ulp = m.half_ulp * psi / m.value + 1e-6 if m.value else 1e-6
+            if names and not DIFF_CUE.search(between) and not b.dp_psi[0] - ulp <= psi <= b.dp_psi[1] + ulp:
+                flags.append(("out_of_bounds", f"'{quote}' is given as the dp setpoint, outside "
+                                               f"[{b.dp_psi[0]:g}, {b.dp_psi[1]:g}] psi"))  # fmt: skip
+    return flags
+
+
+_CHANGE_BEFORE = re.compile(r"(?:\bby|\bum|[+±Δ]|" + tx.ANY_DIRECTION.pattern + r")\s*$", re.I)
+
+
+def _unit_mixup(ctx: Context, m) -> bool:
+    """True when the digits as written are a temperature (pressure) of the data in another temperature (pressure)
+    unit: "25.2 °F" where the data has 25.2 °C."""
+    if m.unit in ("degC", "degF"):
+        shown = [f(e.value) for e in ctx.pool.entries.get("temp_abs", [])
+                 for u, f in (("degC", lambda k: k - K0), ("K", lambda k: k), ("degF", lambda k: k * 9 / 5 - 459.67))
+                 if u != m.unit]  # fmt: skip
+    else:
+        own = next((x for q, x, _ in m.interpretations if q == "pressure"), 0.0) / m.value if m.value else 0.0
+        shown = [e.value / f for e in ctx.pool.entries.get("pressure", []) for f in (PSI_TO_PA, 1000.0, 1e5)
+                 if abs(f - own) > 1e-6 * f]
+    return any(abs(m.value - x) <= m.half_ulp * 1.0001 for x in shown)
+
+
+def _clause_before(ctx: Context, pos: int) -> str:
+    """The text before ``pos`` back to the last sentence or clause end (";", "|", a line end), as in grounding."""
+    text = ctx.rec.text
+    start = max((x.end() for x in _CLAUSE_END.finditer(text, 0, pos)), default=0)
+    return text[start:pos]
+
+
+_FRACTION_JOIN = re.compile(r"\s*(?:/|,|,?\s*and)\s*")
+
+
+def _stated_valves(ctx: Context) -> list[Flag]:
+    """The valve fractions the text gives each branch (after "branch j" in a valve sentence, or a list of one per
+    branch in branch order; not a change "by 0.05") when even the smallest choice of one per branch sums to more
+    than the whole flow: "valves 0.33/0.34/0.53"."""
+    n = ctx.rec.n_branches
+    if not n:
+        return []
+    given: dict[int, set[float]] = {}
+    text = ctx.rec.text
+    for s in ctx.sentences:
+        if not (tx.VALVE.search(s.text) or "VALVE" in s.heading):
+            continue
+        fractions = [m for m in ctx.numbers_in(s.start, s.end) if m.unit == "" and m.decimals >= 2 and 0 <= m.value <= 1
+                     and not _CHANGE_BEFORE.search(text, max(0, m.start - 12), m.start)]  # fmt: skip
+        for c in s.clauses:
+            run = [m for m in fractions if c.start <= m.start < c.end]
+            if len(run) == n and not ctx.branches_in(c.start, c.end) and all(
+                    _FRACTION_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
+                for j, m in enumerate(run):
+                    given.setdefault(j, set()).add(m.value)
+        for bm in ctx.branches_in(s.start, s.end):
+            j = ctx.entity(bm)
+            if bm.group >= 0 and sum(x.group == bm.group for x in ctx.branches) > 1 or not 0 <= j < n:
+                continue
+            a, z = ctx.span_of(bm, s)
+            for m in fractions:
+                if a <= m.start < z:
+                    given.setdefault(j, set()).add(m.value)
+    if len(given) < n or n < 2:
+        return []
+    tol = ctx.cfg.bounds.valve_sum_tol + 0.005 * n  # each stated fraction is rounded
+    smallest = sum(min(given[j]) for j in range(n))
+    if smallest <= 1.0 + tol:
+        return []
+    shown = ", ".join("/".join(f"{v:g}" for v in sorted(given[j])) for j in range(n))
+    return [("out_of_bounds", f"the valve fractions the text gives ({shown}) sum to more than 1")]
+
+
+_COUNT_WORDS = {"two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8}
+_BRANCH_COUNT = re.compile(r"(?<![\d.,])\b(?P<n>\d+|" + "|".join(_COUNT_WORDS) + r")\s+branches\b", re.I)
+
+
+def _stated_branch_count(ctx: Context) -> list[Flag]:
+    """More branches than the cabinet has, as a count: "the valves stay at 0.33 on all four branches"."""
+    n = ctx.rec.n_branches
+    flags = []
+    for m in _BRANCH_COUNT.finditer(ctx.rec.text) if n else ():
+        k = m.group("n").lower()
+        count = int(k) if k.isdigit() else _COUNT_WORDS[k]
+        if count > n and not re.search(r"\bof\s*$", ctx.rec.text[max(0, m.start() - 6) : m.start()]):
+            flags.append(("out_of_bounds", f"'{m.group()}': the cabinet has {n} branches"))
     return flags
