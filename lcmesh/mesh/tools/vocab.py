@@ -283,7 +283,7 @@ VALVE_WORDS = {
 }  # fmt: skip
 # es / de / fr tower words that name its setpoint
 TOWER_SETPOINT_WORDS = (r"consigna\s+de\s+(?:la\s+)?torre", r"turm-?sollwert", r"sollwert\s+des\s+turms",
-                        r"consigne\s+de\s+(?:la\s+)?tour")  # fmt: skip
+                        r"consigne\s+de\s+(?:la\s+)?tour", r"consigne\s+d['’]eau\s+(?:sortant|de\s+sortie)")  # fmt: skip
 _TOWER_NAMES = tuple(w for lang in ("es", "de", "fr") for w in ENTITY_WORDS["tower"][lang])
 
 
@@ -508,12 +508,17 @@ SUPERLATIVES: dict[tuple[str, str], dict[str, tuple[str, ...]]] = {
 }  # fmt: skip
 HIGHEST = tuple(w for (_, order), by_lang in SUPERLATIVES.items() if order == "highest" for w in _all(by_lang))
 LOWEST = tuple(w for (_, order), by_lang in SUPERLATIVES.items() if order == "lowest" for w in _all(by_lang))
-# "branch 1 is hotter / more loaded than branch 3" (English)
+# "branch 1 is hotter / more loaded than branch 3", "Zweig 2 ist wärmer als Zweig 3", "la rama 2 lleva más carga que
+# la rama 3", "la branche 1 est plus chaude que la branche 2"
 COMPARATIVES: dict[tuple[str, str], tuple[str, ...]] = {
-    ("temp", "gt"): ("hotter", "warmer"),
-    ("temp", "lt"): ("cooler", "colder"),
-    ("load", "gt"): (r"more\s+(?:heavily\s+)?loaded", r"(?:more|higher)\s+(?:load|power|heat)"),
-    ("load", "lt"): (r"less\s+(?:heavily\s+)?loaded", r"(?:less|lower)\s+(?:load|power|heat)"),
+    ("temp", "gt"): ("hotter", "warmer", r"más\s+caliente", "wärmer", "heißer", r"plus\s+chaude?"),
+    ("temp", "lt"): ("cooler", "colder", r"más\s+fr[ií][oa]", "kühler", "kälter", r"plus\s+froide?"),
+    ("load", "gt"): (r"more\s+(?:heavily\s+)?loaded", r"(?:more|higher)\s+(?:load|power|heat)",
+                     r"más\s+(?:carga|cargad[oa])", r"mehr\s+last", r"stärker\s+belastet",
+                     r"plus\s+(?:de\s+)?charg(?:e|ée)"),
+    ("load", "lt"): (r"less\s+(?:heavily\s+)?loaded", r"(?:less|lower)\s+(?:load|power|heat)",
+                     r"menos\s+(?:carga|cargad[oa])", r"weniger\s+last", r"schwächer\s+belastet",
+                     r"moins\s+(?:de\s+)?charg(?:e|ée)"),
 }  # fmt: skip
 
 

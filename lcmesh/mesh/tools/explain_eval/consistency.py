@@ -70,6 +70,11 @@ def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.Bra
     def dist(b: tx.BranchMention) -> int:
         return tx.words_between(text, b.end, w0) if b.end <= w0 else tx.words_between(text, w1, b.start)
 
+    named = _IS_NAMED.match(text, w1)  # "the hottest is branch 2", "la plus chargée est la branche 3"
+    if named:
+        after = [b for b in mentions if b.start >= named.end() and tx.words_between(text, named.end(), b.start) <= 1]
+        if after:
+            return after[0]
     same = [b for b in mentions if clause is not None and clause.start <= b.start < clause.end and dist(b) <= 12]
     if same:
         return min(same, key=dist)
@@ -78,6 +83,9 @@ def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.Bra
         return before[-1]
     after = [b for b in mentions if b.start >= w1 and dist(b) <= 3]
     return after[0] if after else None
+
+
+_IS_NAMED = re.compile(r"\s*(?:[\w-]+\s+)?(?:is|was|es|era|est|ist|war)\b", re.I)
 
 
 def _comparatives(ctx: Context, s: tx.Sentence, mentions, data) -> list[Flag]:

@@ -128,6 +128,22 @@ def _flatten_json(text: str) -> str:
     return "\n".join(x for x in (head + ("." if head and not head.endswith((".", ":")) else ""), *lines, tail) if x)
 
 
+# "la branche la plus chaude est la 2", "la más cargada es la 3": the number after "es/est/ist la" names a branch
+# when the sentence has named branches before it
+_IS_THE_N = re.compile(r"\b(?:es|est|ist)\s+(?:la|el|le|der|die)\s+(?=\d+\b(?![.,]\d))", I)
+_BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?|branches?|branch)\b", I)
+
+
+def _is_the_branch(line: str) -> str:
+    out, last = [], 0
+    for m in _IS_THE_N.finditer(line):
+        start = max(line.rfind(". ", 0, m.start()), 0)
+        if _BRANCH_WORD.search(line, start, m.start()):
+            out += [line[last : m.end()], "branch "]
+            last = m.end()
+    return "".join(out) + line[last:]
+
+
 def normalize(text: str) -> str:
     """Plain sentences from the shapes other systems write: markdown table rows become "key: value (change)"
     lines, key-value lines with a change in brackets become "key raised at value.", log shorthand is spelled
@@ -150,6 +166,7 @@ def normalize(text: str) -> str:
         if not s or heading_of(line) is not None:
             out.append(line)
             continue
+        line = _is_the_branch(line)
         if len(re.findall(r"[A-Za-z][\w.-]*\s*=", line)) >= 3:
             line = _KV_PAIR_GAP.sub("; ", line.strip())
         for pattern, repl in _SHORTHAND:
@@ -343,8 +360,14 @@ EFFECT_DOWN = {
                     "idles?"),
 }  # fmt: skip
 REASON = words("because", "since", "due to", "as a result of", "given")
+# water said to leave the tower colder than the wet bulb, however it is put: "below the wet bulb", "colder than the
+# 18.8 °C wet bulb", "más fría que el bulbo húmedo", "kälter als die Feuchtkugel", "plus froide que le bulbe humide"
+_WET_BULB = r"(?:wet[\s-]?bulb|bulbo\s+húmedo|feuchtkugel\w*|bulbe\s+humide)"
+_BELOW = (r"(?:below|under|colder\s+than|cooler\s+than|lower\s+than|por\s+debajo\s+del?|más\s+fr[ií]a\s+que|"
+          r"unter(?:halb)?|kälter\s+als|en\s+dessous\s+du|plus\s+froide\s+que)")
 BELOW_WET_BULB = re.compile(
-    r"(?:leaving[\s-]+water|LWT|tower\s+water|water)[^.;]{0,60}?\bbelow\s+(?:the\s+)?wet[\s-]?bulb", I
+    r"(?:leaving[\s-]+water|LWT|tower\s+water|water|agua|wasser|eau)[^.;]{0,60}?\b" + _BELOW
+    + r"\s+(?:(?:the|el|la|le|die|der)\s+)?(?:[-\d.]+\s*°\s*[CF]\s+)?" + _WET_BULB, I
 )
 
 # ranking claims
@@ -354,7 +377,7 @@ SUPERLATIVES: list[tuple[str, str, re.Pattern]] = [
 ]  # fmt: skip
 COMPARATIVES: list[tuple[str, str, re.Pattern]] = [(kind, op, words(*forms))
                                                    for (kind, op), forms in vocab.COMPARATIVES.items()]  # fmt: skip
-THAN = words("than")
+THAN = words("than", "als", "que", "qu'")
 
 
 def words_between(text: str, a: int, b: int) -> int:
