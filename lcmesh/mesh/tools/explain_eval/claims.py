@@ -155,8 +155,13 @@ def _valves_covered(ctx: Context) -> set[int]:
         equal = float(np.ptp(valves)) < 0.01
         if equal and (tx.EQUAL_SPLIT.search(s.text) or (tx.EACH.search(s.text) and fractions
                                                          and ctx.matches(fractions[0], "fraction", valves[0]))):
-            covered.update(range(valves.size))  # fmt: skip
+            # "split evenly for branch 1 and branch 3" explains those two; with no branches named its scope, every one
+            scope = [b for b in mentions if _SCOPE_BEFORE.search(ctx.rec.text, max(0, b.start - 12), b.start)]
+            covered.update({ctx.entity(b) for b in scope} if scope else range(valves.size))  # fmt: skip
     return covered
+
+
+_SCOPE_BEFORE = re.compile(r"\b(?:for|across|between|among)\s+(?:the\s+)?$", re.I)
 
 
 # up to four words after a number or three before it, not past another number
@@ -281,17 +286,20 @@ def direction_claims(
 
 
 def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:
-    """Give a direction word to the nearest dimension on its side, at most 6 words away; in a clause about one
-    branch, its valve takes the word at that limit ("Branch 1, the coolest ..., had its valve raised")."""
+    """Give a direction word to the nearest dimension on its side, at most 6 words away and not past the fans, pumps
+    or blades an effect is said of; in a clause about one branch, its valve takes the word at that limit ("Branch 1,
+    the coolest ..., had its valve raised")."""
     candidates = []
     for name, d0, d1 in dims:
         far = 6 if single_branch and name.startswith("valve:") else None
         if d0 >= w1 and side in ("after", "both"):
-            dist = tx.words_between(text, w1, d0)
+            dist, gap = tx.words_between(text, w1, d0), (w1, d0)
         elif d1 <= w0 and side in ("before", "both"):
-            dist = tx.words_between(text, d1, w0)
+            dist, gap = tx.words_between(text, d1, w0), (d1, w0)
         else:
             continue
+        if tx.EFFECT_SUBJECT.search(text, *gap):
+            continue  # "the setpoint lets the tower fans ease off": the fans' direction
         candidates.append((dist if far is None else min(dist, far), name, d0))
     if not candidates:
         return

@@ -41,7 +41,10 @@ def check_ranking(ctx: Context) -> list[Flag]:
                     continue
                 j = ctx.entity(b)
                 best = int(values.argmax() if extreme == "max" else values.argmin())
-                if abs(values[j] - values[best]) > _rank_tol(ctx, what, values):
+                if what == "valve" and values.size > 1 and float(np.ptp(values)) < 1e-9:
+                    flags.append(("wrong_ranking", f"'{s.text.strip()}': the valves are split equally, no branch has "
+                                                   f"the {_RANK_NAMES[what, extreme].removeprefix('branch with the ')}"))
+                elif abs(values[j] - values[best]) > _rank_tol(ctx, what, values):
                     flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(j)} is not the "
                                                    f"{_RANK_NAMES[what, extreme]} ({ctx.label(best)} is)"))  # fmt: skip
         flags += _comparatives(ctx, s, mentions, data)

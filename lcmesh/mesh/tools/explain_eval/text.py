@@ -76,8 +76,8 @@ _SHORTHAND: list[tuple[re.Pattern, str]] = [
 
 
 # a comma between digits is a decimal comma ("31,69 °C", "0,33") unless three digits follow it ("1,000 kW": thousands)
-# or it continues an index list ("ramas 1,2"); lc-mesh writes "." in every language, other writers do not
-_DECIMAL_COMMA = re.compile(r"(?<![\d,.])(\d+),(?=(?:\d{1,2}|\d{4,})(?!\d|,\d))")
+# or it continues an index list ("ramas 1,2", "b1,2"); lc-mesh writes "." in every language, other writers do not
+_DECIMAL_COMMA = re.compile(r"(?<![\w,.])(\d+),(?=(?:\d{1,2}|\d{4,})(?!\d|,\d))")
 _INDEX_BEFORE = re.compile(r"\b(?:" + "|".join(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang])
                            + r")\s*$", I)
 _KV_PAIR_GAP = re.compile(r"\s+(?=[A-Za-z][\w.-]*\s*=)")  # "valve1=0.33 valve1_change=held": one field each
@@ -378,6 +378,10 @@ SUPERLATIVES: list[tuple[str, str, re.Pattern]] = [
 COMPARATIVES: list[tuple[str, str, re.Pattern]] = [(kind, op, words(*forms))
                                                    for (kind, op), forms in vocab.COMPARATIVES.items()]  # fmt: skip
 THAN = words("than", "als", "que", "qu'")
+# what a rationale's direction word is said of when it stands between the setpoint and the word: "a higher
+# leaving-water setpoint lets the tower fans ease off" says the fans ease off, not the setpoint
+EFFECT_SUBJECT = words("fans?", "pumps?", "blades?", "chips?", "servers?", "GPUs?", "ventiladores", "bombas?", "lüfter",
+                       "pumpen", "ventilateurs?", "pompes?")
 
 
 def words_between(text: str, a: int, b: int) -> int:
