@@ -327,14 +327,15 @@ _FRACTION_JOIN = re.compile(r"\s*(?:/|,|,?\s*and)\s*")
 
 
 def _stated_valves(ctx: Context) -> list[Flag]:
-    """The valve fractions the text gives each branch (after "branch j" in a valve sentence, or a list of one per
-    branch in branch order; not a change "by 0.05") when even the smallest choice of one per branch sums to more
-    than the whole flow: "valves 0.33/0.34/0.53"."""
+    """Valve fractions the text gives that sum to more than the whole flow: a list of one per branch ("valves
+    0.33/0.34/0.53"), or those said after each "branch j" in valve sentences (not a change "by 0.05") when even the
+    smallest choice of one per branch does."""
     n = ctx.rec.n_branches
     if not n:
         return []
     given: dict[int, set[float]] = {}
     text = ctx.rec.text
+    tol = ctx.cfg.bounds.valve_sum_tol + 0.005 * n  # each stated fraction is rounded
     for s in ctx.sentences:
         if not (tx.VALVE.search(s.text) or "VALVE" in s.heading):
             continue
@@ -344,8 +345,9 @@ def _stated_valves(ctx: Context) -> list[Flag]:
             run = [m for m in fractions if c.start <= m.start < c.end]
             if len(run) == n and not ctx.branches_in(c.start, c.end) and all(
                     _FRACTION_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
-                for j, m in enumerate(run):
-                    given.setdefault(j, set()).add(m.value)
+                if sum(m.value for m in run) > 1.0 + tol:  # one list, one split
+                    return [("out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' sum to "
+                                              "more than 1")]
         for bm in ctx.branches_in(s.start, s.end):
             j = ctx.entity(bm)
             if bm.group >= 0 and sum(x.group == bm.group for x in ctx.branches) > 1 or not 0 <= j < n:
@@ -356,7 +358,6 @@ def _stated_valves(ctx: Context) -> list[Flag]:
                     given.setdefault(j, set()).add(m.value)
     if len(given) < n or n < 2:
         return []
-    tol = ctx.cfg.bounds.valve_sum_tol + 0.005 * n  # each stated fraction is rounded
     smallest = sum(min(given[j]) for j in range(n))
     if smallest <= 1.0 + tol:
         return []
