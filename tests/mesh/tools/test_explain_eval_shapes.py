@@ -129,3 +129,12 @@ def test_an_equal_split_explains_the_branches_it_names(records):
 def test_no_branch_has_the_most_open_valve_of_an_equal_split(records):
     text = f"The valves stay split equally at 0.33. {SETPOINTS} Branch 3 has the most open valve."
     assert _kinds(records, EQUAL, text) == {"wrong_ranking"}
+
+
+def test_a_bare_decimal_after_valves_is_a_valve_fraction_only(records):
+    # rule-design-day-step2520-cabinet2 (valves 0.33 / 0.34 / 0.33, a 0.53 % heat-balance gap), fresh_dev's chat shape:
+    # 0.53 after "valves" is no valve fraction, though read as a percent figure it is the heat-balance gap
+    text = ("cab 2: valves 0.33/0.34/{v3} all held; supply sp 18.0 °C held; dp sp 27.5 psi held; tower LW sp 26.6 °C "
+            "(lowered from 26.9). b2 hottest @ 36.82 °C.")  # fmt: skip
+    assert _kinds(records, "rule-design-day-step2520-cabinet2", text.format(v3="0.33")) == set()
+    assert "ungrounded_number" in _kinds(records, "rule-design-day-step2520-cabinet2", text.format(v3="0.53"))

@@ -110,8 +110,10 @@ def check_grounding(
             res.grounded += 1
             continue
         hits: list[PoolEntry] = []
+        fraction_only = _named_valve_fraction(rec.text, m)
         for q, x, h in m.interpretations:
-            hits += pool.direct(q, x, tolerance(q, x, h, cfg))
+            if not fraction_only or q == "fraction":
+                hits += pool.direct(q, x, tolerance(q, x, h, cfg))
         if hits:
             branch = branch_at(m.start)
             wrong = _misattributed(hits, branch, pool)
@@ -132,6 +134,24 @@ def check_grounding(
             continue
         res.problems.append(f"{_quote(rec.text, m)} matches no observation, action or fact value{_hint(m, pool, cfg)}")
     return res
+
+
+_VALVE_NAME = re.compile(r"\bvalves?\b|" + vocab.alternation(*(vocab.VALVE_WORDS[lang][0] for lang in ("es", "de", "fr"))),
+                         re.IGNORECASE)  # fmt: skip
+
+
+def _named_valve_fraction(text: str, m: NumberMention) -> bool:
+    """A bare decimal from 0 to 1 after a valve word in its clause, with no other quantity named between ("valves
+    0.33/0.34/0.53"), is a valve fraction and nothing else (not a percent figure of some other fact)."""
+    if m.unit or m.decimals == 0 or not 0 <= m.value <= 1:
+        return False
+    breaks = [b.end() for b in _CLAUSE_END.finditer(text, 0, m.start)]
+    before = text[breaks[-1] if breaks else 0 : m.start]
+    names = list(_VALVE_NAME.finditer(before))
+    if not names:
+        return False
+    between = before[names[-1].end() :]
+    return not vocab.QUANTITY.search(between) and len(re.findall(r"[\w°%./-]+", between)) <= 8
 
 
 def _misattributed(hits: list[PoolEntry], branch: int | None, pool: "ValuePool") -> tuple[int, int | None] | None:
