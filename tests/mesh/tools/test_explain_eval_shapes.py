@@ -138,3 +138,13 @@ def test_a_bare_decimal_after_valves_is_a_valve_fraction_only(records):
             "(lowered from 26.9). b2 hottest @ 36.82 °C.")  # fmt: skip
     assert _kinds(records, "rule-design-day-step2520-cabinet2", text.format(v3="0.33")) == set()
     assert "ungrounded_number" in _kinds(records, "rule-design-day-step2520-cabinet2", text.format(v3="0.53"))
+
+
+@pytest.mark.parametrize("wrong, right", [
+    ("Más caudal por una rama reduce la potencia de la bomba.", "Más caudal por una rama aumenta la potencia de la bomba."),
+    ("Mehr Durchfluss senkt die Pumpenleistung.", "Mehr Durchfluss kostet Pumpenleistung."),
+    ("Plus de débit réduit la puissance de la pompe.", "Plus de débit coûte de la puissance de la pompe."),
+])  # fmt: skip
+def test_physics_in_spanish_german_and_french(records, wrong, right):
+    assert _kinds(records, MOVED, f"{VALVES} {SETPOINTS} {wrong}") == {"physics"}
+    assert _kinds(records, MOVED, f"{VALVES} {SETPOINTS} {right}") == set()

@@ -334,30 +334,39 @@ NEGATED_HOLD = re.compile(r"(?:is|was)\s+not\s+changed|did\s+not\s+change|no\s+c
 
 # physics: cause adjectives right before a dimension word, and effect targets with their words
 CAUSE_ADJ_UP = re.compile(
-    r"\b(?:higher|warmer|more|increased|raised|larger|bigger|extra|greater|opening|raising|increasing)\s*$", I
+    r"\b(?:higher|warmer|more|increased|raised|larger|bigger|extra|greater|opening|raising|increasing"
+    r"|más|mayor|mehr|höhere[nrs]?|plus\s+de|davantage\s+de)\s*$", I
 )
 CAUSE_ADJ_DOWN = re.compile(
-    r"\b(?:lower|colder|cooler|less|reduced|lowered|smaller|closing|lowering|reducing|decreasing|throttling)\s*$", I
+    r"\b(?:lower|colder|cooler|less|reduced|lowered|smaller|closing|lowering|reducing|decreasing|throttling"
+    r"|menos|menor|weniger|niedrigere[nrs]?|moins\s+de)\s*$", I
 )
 TARGETS = {
     "temp": words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
-                   "components?", "hardware", r"hot\s?spots?", "branch(?:es)?"),
-    "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)"),
-    "pump": words(r"pump(?:ing)?[\s-]+(?:power|energy|work)"),
-    "energy": words("energy", "electricity", r"power\s+(?:use|draw|consumption)"),
+                   "components?", "hardware", r"hot\s?spots?", "branch(?:es)?",
+                   "placas", "temperaturas?", r"temperatur(?:en)?", "températures?", "lames"),
+    "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)",
+                 r"(?:potencia\s+de\s+(?:los\s+)?)?ventiladores", r"lüfter(?:leistung)?",
+                 r"(?:puissance\s+des\s+)?ventilateurs"),
+    "pump": words(r"pump(?:ing)?[\s-]+(?:power|energy|work)", r"potencia\s+de\s+(?:la\s+)?bomba",
+                  r"pumpenleistung", r"puissance\s+de\s+(?:la\s+)?pompe"),
+    "energy": words("energy", "electricity", r"power\s+(?:use|draw|consumption)", "energía", "energie", "énergie"),
 }  # fmt: skip
-_RISE = ("ris(?:e|es|ing)", "rose", "increas(?:e|es|ed|ing)", "rais(?:e|es|ed|ing)", "higher")
-_FALL = ("lower(?:s|ed|ing)?", "drop(?:s|ped)?", "decreas(?:e|es|ed|ing)", "reduc(?:e|es|ed|ing)")
+_RISE = ("ris(?:e|es|ing)", "rose", "increas(?:e|es|ed|ing)", "rais(?:e|es|ed|ing)", "higher",
+         "aumenta", "sube", "steigt", "erhöht", "augmente", "monte")  # fmt: skip
+_FALL = ("lower(?:s|ed|ing)?", "drop(?:s|ped)?", "decreas(?:e|es|ed|ing)", "reduc(?:e|es|ed|ing)",
+         "reduce", "baja", "disminuye", "senkt", "sinkt", "réduit", "diminue", "baisse")  # fmt: skip
 EFFECT_UP = {
-    "temp": words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?"),
+    "temp": words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?",
+                   "calienta", "erwärmt", "réchauffe"),
     "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
-                    "more", "costs?", "adds?"),
+                    "more", "costs?", "adds?", "cuesta", "kostet", "coûte"),
 }  # fmt: skip
 EFFECT_DOWN = {
     "temp": words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
-                   r"more\s+cooling"),
+                   r"more\s+cooling", "enfría", "kühlt", "refroidit"),
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
-                    "idles?"),
+                    "idles?", "ahorra", "spart", "économise"),
 }  # fmt: skip
 REASON = words("because", "since", "due to", "as a result of", "given")
 # water said to leave the tower colder than the wet bulb, however it is put: "below the wet bulb", "colder than the
