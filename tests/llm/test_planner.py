@@ -282,3 +282,16 @@ def test_on_llama_cpp_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeou
     plan = planner.plan("any alerts?")
     assert plan.by == "rules" and plan.note.startswith("llm output invalid: timeout")
     assert planner.fallback_reasons == {"timeout": 1}
+
+
+def test_a_models_misspelt_choice_and_stray_key_are_repaired_and_said():
+    from lcmesh.mesh.agents.ui.planner import parse_plan, repair_args
+
+    notes: list[str] = []
+    calls = parse_plan('[{"tool":"plant_state","args":{"quantity":"supply_temperature","plant":1,"cabinet":2}}]', notes)
+    assert [(c.tool, c.args) for c in calls] == [("plant_state", {"quantity": "supply_temp", "cabinet": 2})]
+    assert notes == ["plant_state: `quantity` 'supply_temperature' read as 'supply_temp'",
+                     "plant_state: dropped `plant` (plant_state takes no such argument)"]
+    with pytest.raises(PlanError):  # a wrong number is never guessed at
+        parse_plan('[{"tool":"plant_state","args":{"quantity":"supply_temp","cabinet":0}}]', [])
+    assert repair_args("rank", {"quantity": "temp"}) == ({"quantity": "temp"}, [])  # ambiguous: left invalid

@@ -148,3 +148,18 @@ def test_a_bare_decimal_after_valves_is_a_valve_fraction_only(records):
 def test_physics_in_spanish_german_and_french(records, wrong, right):
     assert _kinds(records, MOVED, f"{VALVES} {SETPOINTS} {wrong}") == {"physics"}
     assert _kinds(records, MOVED, f"{VALVES} {SETPOINTS} {right}") == set()
+
+
+def test_a_superlative_is_no_direction_claim(records):
+    # valve 3 closed 0.39 -> 0.37 and ties valve 1 (0.3734 / 0.3709) for the most open: a ranking that holds
+    assert _kinds(records, MOVED, f"{VALVES} {SETPOINTS} La rama 3 tiene la válvula más abierta.") == set()
+    assert _kinds(records, MOVED, f"{VALVES} {SETPOINTS} La rama 3 abrió su válvula.") == {"wrong_direction"}
+
+
+def test_a_bullet_with_its_change_after_a_comma(records):
+    bullets = ("* Branch 1: 37.17 °C, valve held at 0.37\n* Branch 2: 36.89 °C, valve opened to 0.26\n"
+               "* Branch 3: 37.22 °C, valve closed to 0.37\n* CDU supply setpoint: 18.0 °C, held\n"
+               "* dp setpoint: {dp} psi, held\n* Tower leaving-water setpoint: 25.2 °C, held")  # fmt: skip
+    assert _kinds(records, MOVED, bullets.format(dp="27.5")) == set()
+    # a wrong value is ungrounded and out of bounds; the dp is still explained (named, with its change)
+    assert _kinds(records, MOVED, bullets.format(dp="41.5")) == {"ungrounded_number", "out_of_bounds"}

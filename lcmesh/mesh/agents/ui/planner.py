@@ -124,8 +124,44 @@ def validate_plan(calls: list[dict] | list[ToolCall]) -> list[BaseModel]:
     return out
 
 
-def parse_plan(text: str) -> list[ToolCall]:
-    """A plan from an LLM's text: exactly one JSON list of ``{"tool", "args"}`` objects, each valid."""
+def repair_args(tool: str, args: dict) -> tuple[dict, list[str]]:
+    """A model's arguments with what can be read unambiguously put right, and a note per change: a key the tool
+    does not take dropped, a misspelt choice replaced by the one valid choice it is close to ("supply_temperature"
+    -> "supply_temp"). A wrong number is not guessed at: the call stays invalid and the plan falls back."""
+    import difflib
+
+    model = PLANNER_TOOLS.get(tool)
+    if model is None or not isinstance(args, dict):
+        return args, []
+    fixed, notes = {}, []
+    for key, value in args.items():
+        field = model.model_fields.get(key)
+        if field is None:
+            notes.append(f"dropped `{key}` ({tool} takes no such argument)")
+            continue
+        choices = _literal_choices(field.annotation)
+        if isinstance(value, str) and choices and value not in choices:
+            close = difflib.get_close_matches(value, choices, n=2, cutoff=0.75)
+            if len(close) == 1 or (close and difflib.SequenceMatcher(None, value, close[0]).ratio() >= 0.9):
+                notes.append(f"`{key}` {value!r} read as {close[0]!r}")
+                value = close[0]
+        fixed[key] = value
+    return fixed, notes
+
+
+def _literal_choices(annotation: Any) -> list[str]:
+    """The strings a Literal (or an optional Literal) annotation allows."""
+    import typing
+
+    out = []
+    for arg in typing.get_args(annotation):
+        out += [arg] if isinstance(arg, str) else _literal_choices(arg)
+    return out
+
+
+def parse_plan(text: str, notes: list[str] | None = None) -> list[ToolCall]:
+    """A plan from an LLM's text: exactly one JSON list of ``{"tool", "args"}`` objects, each valid (after
+    ``repair_args``; what it changed is appended to `notes`)."""
     text = text.strip()
     if not text:
         raise PlanError("empty", "no output")
@@ -142,7 +178,16 @@ def parse_plan(text: str) -> list[ToolCall]:
         if not isinstance(item, dict) or set(item) - {"tool", "args"} or "tool" not in item:
             raise PlanError("schema", f"call {i + 1} must be {{\"tool\": .., \"args\": {{..}}}}, got {item!r}"[:160])
         call = ToolCall(item["tool"], item.get("args") or {})
-        call.request()
+        try:
+            call.request()
+        except PlanError:
+            args, changed = repair_args(call.tool, call.args)
+            if not changed:
+                raise
+            call = ToolCall(call.tool, args)
+            call.request()  # still invalid: the first error is as good as this one
+            if notes is not None:
+                notes += [f"{call.tool}: {c}" for c in changed]
         calls.append(call)
     return calls
 
@@ -372,6 +417,7 @@ class _Fallbacks:
         self.fallback = fallback or RulePlanner()
         self.plans = 0
         self.fallbacks = 0
+        self.repairs = 0  # plans whose arguments repair_args put right (still the model's plans)
         self.fallback_reasons: Counter = Counter()
 
     def _fall_back(self, question: str, reason: str, detail: str, raw: str | None, t0: float) -> Plan:
@@ -384,6 +430,7 @@ class _Fallbacks:
 
     def stats_snapshot(self) -> dict:
         return {"plans": self.plans, "fallbacks": self.fallbacks, "fallback_reasons": dict(self.fallback_reasons),
+                "repairs": self.repairs,
                 "fallback_rate": self.fallbacks / max(self.plans, 1)}  # fmt: skip
 
 
@@ -461,13 +508,17 @@ class LlmPlanner(_Fallbacks):
         if gen.failure and not gen.text.rstrip().endswith(PLAN_STOP):
             return self._fall_back(question, gen.failure if gen.failure == "timeout" else "backend",
                                    gen.failure, gen.text, t0)  # fmt: skip
+        repaired: list[str] = []
         try:
-            calls = parse_plan(gen.text)
+            calls = parse_plan(gen.text, repaired)
         except PlanError as exc:
             if gen.finish_reason == "length":
                 return self._fall_back(question, "length", f"no complete plan in {gen.new_tokens} tokens", gen.text, t0)
             return self._fall_back(question, exc.reason, exc.detail, gen.text, t0)
-        return Plan(calls, by="llm", raw=gen.text, seconds=self.clock() - t0)
+        if repaired:  # said, and counted: the model planned, its arguments were put right
+            self.repairs += 1
+        note = f"llm arguments repaired: {'; '.join(repaired)}"[:300] if repaired else None
+        return Plan(calls, by="llm", note=note, raw=gen.text, seconds=self.clock() - t0)
 
 
 # --- any OpenAI-compatible endpoint with function calling ----------------------------------------------

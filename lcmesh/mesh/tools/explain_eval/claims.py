@@ -265,8 +265,12 @@ def direction_claims(
     if not dims:
         return []
     best: dict[str, tuple[int, str, int, int]] = {}  # dimension -> (words away, polarity, word at, dimension at)
+    # "la válvula más abierta", "the most open valve": a ranking, not a change
+    ranked = [(r.start(), r.end()) for _, _, sup in tx.SUPERLATIVES for r in sup.finditer(text)]
     for pol, side, pattern in tx.DIRECTION:
         for w in pattern.finditer(text):
+            if any(a <= w.start() < z for a, z in ranked):
+                continue
             if tx.NEGATION.search(text[max(0, w.start() - 15) : w.start()]) and not tx.NEGATED_HOLD.match(w.group()):
                 continue  # "was not raised" claims no direction; "did not change" is a hold word itself
             if side == "both" and tx.PASSIVE_AUX.search(text[max(0, w.start() - 25) : w.start()]):

@@ -47,9 +47,12 @@ class BranchMention:
 # --- normalization: tables, key-value lines and log shorthand to plain sentences -----------------
 
 _TABLE_RULE = re.compile(r"^:?-{2,}:?$")
+_CHANGE_WORDS = r"(?:raised|lowered|held|increased|decreased|unchanged|opened|closed)"
 _KV_LINE = re.compile(r"^(?P<lead>\s*(?:[-*•]\s+)?)(?P<key>[A-Za-z][\w '’/-]*?)\s*[:=]\s*(?P<val>[^()\n]+?)\s*"
-                      r"\((?P<dir>(?:raised|lowered|held|increased|decreased|unchanged|opened|closed)[^()]*)\)"
-                      r"\s*\.?$", I)
+                      r"\((?P<dir>" + _CHANGE_WORDS + r"[^()]*)\)\s*\.?$", I)
+# "dp setpoint: 41.5 psi, held": the change after a comma, as in a bullet list
+_KV_COMMA_LINE = re.compile(r"^(?P<lead>\s*(?:[-*•]\s+)?)(?P<key>[A-Za-z][\w '’/-]*?)\s*:\s*(?P<val>[^(),\n]+?)\s*,\s*"
+                            r"(?P<dir>" + _CHANGE_WORDS + r")\s*\.?$", I)
 _SHORTHAND: list[tuple[re.Pattern, str]] = [
     (re.compile(r"(?<=[A-Za-z0-9])(?<!\b[TQ])_(?=[A-Za-z0-9])"), " "),  # supply_setpoint, branch_1_valve; not T_cdu
     (re.compile(r"\s*\((?:=|hold)\)", I), " (held)"),
@@ -171,7 +174,7 @@ def normalize(text: str) -> str:
             line = _KV_PAIR_GAP.sub("; ", line.strip())
         for pattern, repl in _SHORTHAND:
             line = pattern.sub(repl, line)
-        m = _KV_LINE.match(line)
+        m = _KV_LINE.match(line) or _KV_COMMA_LINE.match(line)
         if m:
             line = f"{m.group('lead')}{m.group('key')} {m.group('dir')} at {m.group('val')}."
         out.append(line)
