@@ -58,7 +58,7 @@ _RANK_NAMES = {("temp", "max"): "hottest", ("temp", "min"): "coolest", ("load", 
 
 def _rank_tol(ctx: Context, what: str, values: np.ndarray) -> float:
     if what == "temp":
-        return ctx.cfg.temp_tol_k
+        return ctx.cfg.rank_temp_tol_k
     if what == "valve":
         return ctx.cfg.fraction_tol
     return ctx.cfg.rel_tol * float(np.abs(values).max())

@@ -43,6 +43,8 @@ class EvalConfig(BaseModel):
 
     rel_tol: float = Field(default=0.01, ge=0, le=0.5, description="relative tolerance (power, flow, pressure ...)")
     temp_tol_k: float = Field(default=0.1, ge=0, le=5, description="absolute tolerance on temperatures, K")
+    rank_temp_tol_k: float = Field(default=0.02, ge=0, le=5, description="temperatures closer than this tie in a "
+                                   "ranking ('hottest'), K: it compares the data's own values, not printed ones")
     fraction_tol: float = Field(default=0.005, ge=0, le=0.2, description="absolute tolerance on fractions")
     hold_band: dict[str, float] = {"supply": 0.05, "dp": 0.05 * PSI_TO_PA, "flow": 0.05, "tower": 0.05, "valve": 0.005}
     bounds: Bounds = Bounds()
