@@ -148,10 +148,11 @@ def _is_the_branch(line: str) -> str:
 
 
 def normalize(text: str) -> str:
-    """Plain sentences from the shapes other systems write: markdown table rows become "key: value (change)"
-    lines, key-value lines with a change in brackets become "key raised at value.", log shorthand is spelled
-    out (``supply_sp`` -> supply setpoint, ``b2=`` -> branch 2 valve, arrows -> raised / lowered). Prose
-    without these shapes is returned unchanged."""
+    """Plain sentences from the shapes other systems write: decimal commas become points, a JSON object one line
+    per object holding values, markdown table rows "key: header value, ... (change)" lines, key-value lines with a
+    change in brackets or after a comma "key raised at value.", a line of key=value fields one field at a time,
+    log shorthand is spelled out (``supply_sp`` -> supply setpoint, ``b2=`` -> branch 2 valve, arrows -> raised /
+    lowered). Prose without these shapes is returned unchanged."""
     out, header = [], None
     text = _flatten_json(_decimal_commas(text))
     for line in text.splitlines():
