@@ -31,7 +31,10 @@ from lcmesh.mesh.agents.ui.facts import format_value, numbers_in
 from lcmesh.mesh.tools import registry
 
 QUESTIONS = "chat_questions.jsonl"
-QUESTION_SETS = {"a": QUESTIONS, "b": "chat_questions_b.jsonl"}  # b: written by an outside author (issue 24), test only
+# b: written by an outside author for issue 24, test only (never read while tuning); c: by another outside author to the
+# same brief, dev only (what the question check and the rules were tuned on after set b was first scored)
+QUESTION_SETS = {"a": QUESTIONS, "b": "chat_questions_b.jsonl", "c": "chat_questions_c.jsonl"}
+SET_SPLITS = {"a": ("dev", "test"), "b": ("test",), "c": ("dev",)}
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ def bench_chat(
     planners: Annotated[str, typer.Option(help="comma list of llm, rules, openai, oracle (the expected calls)")] = \
         "llm,rules,oracle",
     site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
-    questions: Annotated[str, typer.Option(help="question sets: a (the first, dev and test), b (the outside "
-                                           "author's, test only) or a,b")] = "a,b",
+    questions: Annotated[str, typer.Option(help="question sets: a (the first, dev and test), b (an outside author's, "
+                                           "test only), c (another outside author's, dev only); comma list")] = "a,b,c",
     live: Annotated[int, typer.Option(help="instead: start the demo mesh and ask this many test questions through "
                                       "its REST API; who planned each answer and its latency", min=0)] = 0,
     controller: Annotated[Optional[str], typer.Option(help="--live: the demo's controller (default: the demo's)")] = None,
@@ -50,7 +50,7 @@ def bench_chat(
     sets = [q.strip() for q in questions.split(",") if q.strip()]
     if not sets or any(q not in chat.QUESTION_SETS for q in sets):
         fail(f"--questions must be a comma list of {', '.join(chat.QUESTION_SETS)}, not {questions!r}")
-    parts = [(qs, sp) for qs in sets for sp in splits if qs == "a" or sp == "test"]  # set b is all test
+    parts = [(qs, sp) for qs in sets for sp in splits if sp in chat.SET_SPLITS[qs]]  # b is all test, c all dev
     with console.status("recording (or reusing) the bench site"):
         site = ensure_site(models_dir().parent / "chat-sites", minutes=site_minutes)
     sources, run_tool = chat.site_runner(site)

@@ -48,12 +48,12 @@ def _all(table: dict[str, tuple[str, ...]]) -> tuple[str, ...]:
 
 # regex forms by kind and language; a blade group is an entity of its own in the chat (blade group g of branch b)
 ENTITY_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
-    "cabinet": {"en": ("cabinets?", "cdus?", "racks?"), "es": ("gabinetes?", "armarios?"), "de": ("schr[aä]nke?",),
+    "cabinet": {"en": ("cabinets?", "cdus?", "racks?", "cabs?"), "es": ("gabinetes?", "armarios?"), "de": ("schr[aä]nke?",),
                 "fr": ("armoires?",)},
     "branch": {"en": ("branch(?:es)?",), "es": ("ramas?",), "de": ("zweige?", "str[aä]nge?"), "fr": ("branches?",)},
     "blade group": {"en": (r"blade[\s-]groups?",), "es": (r"grupos?\s+de\s+blades",), "de": (r"blade-gruppen?",),
                     "fr": (r"groupes?\s+de\s+lames",)},
-    "tower": {"en": ("towers?",), "es": ("torres?",), "de": ("t[uü]rme?",), "fr": ("tours?",)},
+    "tower": {"en": ("towers?", "cts?"), "es": ("torres?",), "de": ("t[uü]rme?",), "fr": ("tours?",)},
 }  # fmt: skip
 _ENTITY_ALT = alternation(*(w for by_lang in ENTITY_WORDS.values() for w in _all(by_lang)))
 _KINDS = {kind: re.compile(alternation(*_all(by_lang)), I) for kind, by_lang in ENTITY_WORDS.items()}
@@ -573,10 +573,10 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"\bflows?\b|caudal|durchfluss|d[ée]bit", {"flow"}),
     (r"\breturn\b|retorno|r[uü]cklauf|\bretour", {"return_temp", "htw_return_temp"}),
     (r"\balert|\balarm|\bfaults?\b|st[oö]rung|warnung|alerte|\bflag", {"alerts"}),
-    (r"(?<!maintenance )\bagents?\b|\bservices?\b|agentes?\b|dienste", {"agents"}),
+    (r"(?<!maintenance )\bagents?\b|(?<!en )(?<!in )\bservices?\b|agentes?\b|dienste", {"agents"}),
     (r"controller|\bpolicy\b|\bregler|controlador|contr[oô]leur", {"controller"}),
     (r"reject|rechaz|abgegeben|\brejet", {"heat_rejected"}),
-    (r"leaving[- ]water|\blw\b|\bbasin\b", {"leaving_water", "lw_setpoint", "lw"}),
+    (r"leaving[- ]water|\blwt?\b|\bbasin\b", {"leaving_water", "lw_setpoint", "lw"}),
     (r"(?<!hot[- ])(?<!hot)\bwater\b", {"leaving_water", "lw_setpoint", "lw", "htw_supply_temp", "htw_return_temp"}),
     (r"\b(last|past|previous)\s+(\d+\s*)?(min|mins|minutes?|hours?|h|hrs?|days?)\b|\bago\b|\bhace\b|\bvor\s+\d"
      r"|\bil y a\b|[uú]ltima hora|[uú]ltimos \d+|letzten (stunde|\d+)|derni[eè]re heure|derni[eè]res \d+", {"history"}),
@@ -593,12 +593,17 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
     (r"what (if|would happen)|\bsuppose\b|\bsimulat|qu[eé] pasar[ií]a|was w[aä]re|was passiert,? wenn"
      r"|que se passerait|\bet si\b", {"whatif"}),
     # the kind of quantity: energy (kWh over a window) is not power now
-    (r"\b(energ(y|[ií]a|ie)|[ée]nergie)\b(?!\s*(balance|efficiency|bilanz|bilan|-?effizienz))|\bkwh\b|\bconsum"
-     r"|\bverbrauch|\bconsomm", {"energy"}),
+    (r"how much heat\b.*\b(last|past)\b|^(?!.*\bkw\b(?!h))(?=.*(\b(energ(y|[ií]a|ie)|[ée]nergie)\b(?!\s*(balance|efficiency|bilanz|bilan|-?effizienz))"
+     r"|\bkwh\b|\bconsum|\bverbrauch|\bconsomm))", {"energy"}),  # "consuming now, in kW" asks power
     # "where" and "when" ask for a place and a time, not only a value
     (r"\bwhere\b|\bd[oó]nde\b|\bwo\b|\bwhich (cabinet|branch|tower|blade|cdu)|(?<!\w)où(?!\w)", {"where"}),
     (r"\bwhen\b|what time|\bcu[aá]ndo\b|qu[eé] hora|\bwann\b|wie viel uhr|\bquand\b|quelle heure", {"when"}),
-    (r"how many|\bcu[aá]nt[oa]s\b|wie viele|\bcombien\b", {"count"}),
+    (r"(how many|\bcu[aá]nt[oa]s\b|wie viele|\bcombien de\b)(?!\s+(kwh|kw|mwh|degrees?|grados|grad|degr[ée]s|"
+     r"minutes?|minutos|minuten|hours?|horas|stunden|heures|percent|por ciento|prozent|pour cent|psi|bar|k\b))",
+     {"count"}),
+    (r"\bpumps?\b|\bbombas?\b|\bpumpen?\b|\bpompes?\b", {"pumps", "pump_power", "cdu_pump_power", "pump_speed",
+                                                         "cooling_power"}),
+    (r"\bfans?\b|ventiladores?|l[uü]fter|ventilateurs?", {"fans", "tower_power", "fan_speed", "cooling_power"}),
     (r"\bweather\b|\bclima\b|\bwetter\b|\bm[ée]t[ée]o\b|(wet[- ]?bulb|bulbo|feuchtkugel|bulbe)\b.*\b(effect|affect|"
      r"impact|influen|efecto|afecta|wirkung|einfluss|auswirk|effet)|\b(effect|affect|impact|influen|efecto|afecta|"
      r"wirkung|einfluss|auswirk|effet)\w*\b.*(wet[- ]?bulb|bulbo|feuchtkugel|bulbe)", {"weather"}),
@@ -606,7 +611,7 @@ QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.
 # Two words together name what the answer must be: a setpoint-tracking gap, blade groups ranked (not cabinets).
 PAIRED_CONCEPTS: list[tuple[re.Pattern, re.Pattern, frozenset[str]]] = [
     (re.compile(p, re.IGNORECASE), re.compile(q, re.IGNORECASE), frozenset(c)) for p, q, c in (
-        (r"\bgaps?\b|deviat|\boff\b|\bfar\b|f[au]rthest|further|away from|differ|\btrack|abweich|[ée]cart|desviac|"
+        (r"\bgaps?\b|deviat|\boff\b|\bfar\b|f[au]rthest|further|away from|differ|\btrack|abweich|[ée]cart|desviac|minus|"
          r"unterschied|distance|lejos|entfernt|loin",
          r"set[- ]?points?|consigna|sollwert|consigne", {"gap"}),
         (r"blade[- ]?groups|\bbranches\b|grupos de blades|\bramas\b|blade-gruppen|\bzweige\b|groupes de lames",
@@ -614,7 +619,23 @@ PAIRED_CONCEPTS: list[tuple[re.Pattern, re.Pattern, frozenset[str]]] = [
          r"hei(ß|ss)est|k[aä]ltest|plus (chaud|froid)", {"branch_level"}),
     )]  # fmt: skip
 SETPOINT_WORD = re.compile(r"set[- ]?points?|\bsp\b|consignas?|sollwerte?s?|consignes?", re.IGNORECASE)
-MEASURED_WORD = re.compile(r"\bmeasured|\bactual\b|gemessen|medid[oa]|mesur[ée]|\breal\b", re.IGNORECASE)
+# The aggregate a question asks of a window, and which way a ranking goes.
+ASKED_STATS = {"mean": re.compile(r"\b(average|avg|mean|promedio|media|durchschnitt\w*|mittel\w*|moyenne)\b"
+                                  r"(?![\s-]+(blade|temp))", I),
+               "max": re.compile(r"\b(max(imum)?|peak(ed)?|highest|m[aá]xim[oa]|pico|spitze|h[oö]chst\w*|pic)\b", I),
+               "min": re.compile(r"\b(minimum|lowest|m[ií]nim[oa]|niedrigst\w*|tiefst\w*)\b", I)}  # fmt: skip
+HIGH_WORD = re.compile(r"\b(hottest|hott?est|warmest|highest|most|biggest|largest|fastest|m[aá]s (caliente|alt[oa])|"
+                       r"hei(ß|ss)est\w*|h[oö]chst\w*|plus (chaud|[ée]lev[ée]))", I)  # fmt: skip
+LOW_WORD = re.compile(r"\b(coolest|coldest|lowest|least|smallest|slowest|bottom|m[aá]s (fr[ií][oa]|baj[oa])|"
+                      r"k[aä]ltest\w*|niedrigst\w*|plus (froid|bas))", I)  # fmt: skip
+TRACKING_ERROR = re.compile(r"tracking error|regelabweichung|control (error|deviation)|error de (control|seguimiento)|"
+                            r"[ée]cart de r[ée]gulation", I)  # fmt: skip
+DOWN_ASKED = re.compile(r"\b(lower\w*|reduc\w*|decreas\w*|drop\w*|cut|bajar|baja|bajo|reducir|absenken|senken|senke|"
+                        r"verringer\w*|baisser|abaisser|baisse|diminuer)\b|(?<![\w.])-\s*\d", I)  # fmt: skip
+UP_ASKED = re.compile(r"\b(rais\w*|increas\w*|bump\w*|subir|sube|aumentar|anheben|erh[oö]h\w*|augmenter|augmente|"
+                      r"relever)\b|(?<![\w.])\+\s*\d", I)  # fmt: skip
+MEASURED_WORD = re.compile(r"(?<!not the )(?<!not )(?<!no el )(?<!nicht den )(?<!pas la )(?<!pas le )"
+                           r"(\bmeasured|\bactual\b|gemessen|medid[oa]|mesur[ée]|\breal\b)", re.IGNORECASE)
 MISSING_WORDS: dict[str, dict[str, str]] = {
     "energy": {"en": "energy over a time (kWh)", "es": "energía en un periodo (kWh)", "de": "Energie über eine Zeit "
                "(kWh)", "fr": "l'énergie sur une durée (kWh)"},

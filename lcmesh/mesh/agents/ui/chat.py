@@ -35,7 +35,10 @@ from lcmesh.mesh.agents.ui.language import detect_language, phrase
 from lcmesh.mesh.agents.ui.phrasing import Phraser, TemplatePhraser
 from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall
 from lcmesh.mesh.tools import registry, semantic
-from lcmesh.mesh.tools.vocab import MEASURED_WORD, MISSING_WORDS, PAIRED_CONCEPTS, QUESTION_CONCEPTS, SETPOINT_WORD
+from lcmesh.mesh.tools.vocab import (
+    ASKED_STATS, DOWN_ASKED, HIGH_WORD, LOW_WORD, MEASURED_WORD, MISSING_WORDS, PAIRED_CONCEPTS, QUESTION_CONCEPTS,
+    SETPOINT_WORD, TRACKING_ERROR, UP_ASKED,
+)  # fmt: skip
 from lcmesh.mesh.tools.plant_data import PLANT_TOOLS
 
 log = logging.getLogger("lcmesh.mesh.agents.ui")
@@ -113,25 +116,29 @@ def check_answer(text: str, facts: list[ChatFact]) -> list[semantic.Problem]:
 
 # --- does the plan cover the question? ------------------------------------------------------------------------
 TOOL_COVERS: dict[str, frozenset[str]] = {k: frozenset(v) for k, v in {
-    "energy_balance": {"pue", "it_power", "heat_rejected", "cdu_heat", "cooling_power", "tower_power", "pump_power"},
+    "energy_balance": {"pue", "it_power", "heat_rejected", "cdu_heat", "cooling_power", "tower_power", "pump_power",
+                       "pumps", "fans"},
     "overview": {"pue", "blade_temp", "in_band", "it_power", "tower_power", "pump_power", "wet_bulb", "controller",
-                 "ranking"},
-    "band_count": {"in_band", "blade_temp"}, "alerts": {"alerts"}, "agents": {"agents"},
+                 "ranking", "pumps", "fans"},
+    "band_count": {"in_band", "blade_temp"}, "alerts": {"alerts", "pumps"}, "agents": {"agents"},
     "controller": {"controller", "history", "mode"},
-    "decision": {"valve", "supply", "dp", "lw", "controller", "history"},
+    "decision": {"controller", "history"},  # the setpoint it is about comes from its `action` argument
     "rank": {"ranking"}, "compare": {"ranking", "lowest"},
     "history_stat": {"history"},
-    "whatif_setpoint": {"whatif", "blade_temp", "in_band", "tower_power", "pump_power", "cooling_power"},
+    "whatif_setpoint": {"whatif", "blade_temp", "in_band", "tower_power", "pump_power", "cooling_power", "pumps",
+                        "fans"},
     "propose_change": {"controller"},
     "energy_used": {"energy", "history", "pump_power", "tower_power", "cooling_power", "it_power", "heat_rejected"},
     "tracking_gap": {"gap", "supply", "supply_temp", "supply_setpoint", "leaving_water", "lw_setpoint", "lw",
                      "where", "ranking", "tower"},
     "peak": {"history", "where", "when", "ranking", "lowest"},
     "weather_effect": {"weather", "wet_bulb", "approach", "leaving_water", "fan_speed", "tower_power", "tower",
-                       "history"},
-    "whatif_controller": {"whatif", "controller", "energy", "cooling_power", "blade_temp", "in_band"},
+                       "history", "fans"},
+    "whatif_controller": {"whatif", "controller", "energy", "cooling_power", "blade_temp", "in_band", "pumps", "fans"},
 }.items()}  # fmt: skip
 # Concepts a tool covers only with some of its arguments, or that every listing of entities covers.
+ENERGY_WHAT = {"cooling": {"pumps", "fans"}, "pumps": {"pumps"}, "tower_fans": {"fans"}, "it": set(),
+               "heat_rejected": set()}  # fmt: skip
 WHERE_TOOLS = {"rank", "compare", "band_count", "overview", "plant_state", "alerts", "decision"}
 WHEN_TOOLS = {"decision", "controller", "alerts"}
 COUNT_TOOLS = {"band_count", "agents", "alerts", "rank"}
@@ -141,21 +148,28 @@ _SETPOINT_CONCEPTS = {"supply": {"supply", "supply_setpoint", "supply_temp"}, "d
 
 # Things no tool knows: a plan for such a question answers something else, so the question is refused.
 OUT_OF_SCOPE = re.compile(
-    r"\b(price|prices|cost|costs|bill|tariff|precio|cuesta|cuestan|kostet|kosten|preis|prix|co[uû]te?|jobs?|users?"
+    r"\b(price|prices|(?:cost|costs|cuesta|cuestan|kostet|kosten|co[uû]te?)(?!\s+(?:\w+\s+){0,2}(?:in|en|an)\s+"
+    r"(?:fan\s+|pump\s+)?(?:power|energy|kw|potencia|leistung|puissance|[ée]nergie|energ[ií]a|ventil|l[uü]fter))"
+    r"|bill|tariff|precio|preis|prix|jobs?|users?"
     r"|trabajos?|usuarios?|benutzer|utilisateurs?|forecast|pron[oó]stico|vorhersage|pr[ée]vision|tomorrow|ma[nñ]ana"
-    r"|morgen|demain|next week|joke|chiste|witz|blague|single|married|love|weather in|other sites?|password"
-    r"|conductivity|turbidity|viscosity|corrosion|glycol|humidity|leitf[aä]higkeit|conductividad|conductivit[ée])\b",
+    r"|morgen|demain|next week|joke|chiste|witz|blague|married|are you single|love|weather in|other sites?|password"
+    r"|contrase[nñ]a|passwort|mot de passe"
+    r"|conductivity|turbidity|viscosity|corrosion|glycol|humidity|leitf[aä]higkeit|conductividad|conductivit[ée]"
+    r"|vibrations?|vibraci[oó]n|vibration|schwingung|noise|haiku|poem|poema|gedicht|po[eè]me|from now"
+    r"|at the \w+ site)\b",
     re.IGNORECASE)  # fmt: skip
 # An order, not a question: only a proposal answers it (chat never acts; the operator confirms).
 COMMAND = re.compile(
     r"(^|\b(and|und|y|et|then|dann|luego|puis)\s+|^(please|bitte|por favor|s'il (te|vous) pla[iî]t)\s+)"
-    r"(set|switch|change|raise|lower|increase|decrease|put|turn|apply|pon|pone|cambia|sube|baja|pasa|establece"
+    r"(set|switch|change|raise|lower|increase|decrease|put(?!\s.*\b(next to|beside|side by side|against)\b)|turn"
+    r"|apply|pon|pone|cambia|sube|baja|pasa|establece"
     r"|ajusta|setze|setz|stelle|stell|schalte|schalt|erh[oö]he|senke|wechsle|passe|mets|r[eè]gle|augmente|baisse)\b",
     re.IGNORECASE)  # fmt: skip
 _UNITS = [(re.compile(p, re.IGNORECASE), unit) for p, unit in (
     (r"\d\s*(°\s*f\b|f\b|fahrenheit)", "degF"), (r"\d\s*bar\b", "bar"), (r"\d\s*kpa\b", "kPa"),
 )]  # fmt: skip
-_HOURS = re.compile(r"(\d+(?:\.\d+)?)\s*(h|hrs?|hours?|horas?|stunden?|heures?)\b", re.IGNORECASE)
+_HOURS = re.compile(r"(\d+(?:[.,]\d+)?)\s*(?:(?:last|past|derni[eè]res|[uú]ltimas|letzten)\s+)?"
+                    r"(h|hrs?|hours?|horas?|stunden?|heures?)\b", re.IGNORECASE)  # fmt: skip
 
 
 def _arg_numbers(calls: list[ToolCall], *, time: bool | None = None) -> set[float]:
@@ -166,6 +180,8 @@ def _arg_numbers(calls: list[ToolCall], *, time: bool | None = None) -> set[floa
     def walk(value: Any, key: str = "") -> None:
         if isinstance(value, bool):
             return
+        if isinstance(value, str) and value.isdigit() and time is not True:  # a decision id "1187"
+            out.add(round(float(value), 6))
         if isinstance(value, (int, float)):
             if time is None or time == (key == "minutes"):
                 out.add(round(abs(float(value)), 6))
@@ -185,6 +201,7 @@ def _arg_numbers(calls: list[ToolCall], *, time: bool | None = None) -> set[floa
     return out
 
 
+_LAST_HOUR = re.compile(r"\b(last|past|previous) hour\b|[uú]ltima hora|letzten stunde|derni[eè]re heure", re.IGNORECASE)
 _MINUTES = re.compile(r"(\d+(?:\.\d+)?)\s*(min|mins|minutes?|minutos?|minuten?)\b", re.IGNORECASE)
 
 
@@ -192,15 +209,17 @@ def _question_numbers(question: str) -> list[tuple[str, set[float], bool | None]
     """Numbers the question states (not entity numbers), each with the values a plan may carry for it and whether
     it is a time window (True: it must be a `minutes` argument; None: any argument)."""
     entity_spans = [m.span() for m in semantic.ENTITY.finditer(question)]
-    hours = {m.start(1): float(m.group(1)) * 60.0 for m in _HOURS.finditer(question)}
+    hours = {m.start(1): float(m.group(1).replace(",", ".")) * 60.0 for m in _HOURS.finditer(question)}
     minutes = {m.start(1) for m in _MINUTES.finditer(question)}
-    out = []
-    for m in re.finditer(r"(?<![\w.:])\d+(?:\.\d+)?(?!\s*(?:am|pm|a\.m\.|p\.m\.)\b|:\d)", question):
+    out = []  # "0,5 psi": a decimal comma (not "1,000", a thousands separator)
+    for m in re.finditer(r"(?<![\w.:,])\d+(?:\.\d+|,\d{1,2}(?!\d))?(?!\s*(?:am|pm|a\.m\.|p\.m\.)\b|:\d)", question):
         if any(a <= m.start() < b for a, b in entity_spans):
             continue
-        value = float(m.group(0))
+        value = float(m.group(0).replace(",", "."))
         ok = {round(value, 6)} | ({round(hours[m.start()], 6)} if m.start() in hours else set())
         out.append((m.group(0), ok, True if m.start() in minutes or m.start() in hours else None))
+    if _LAST_HOUR.search(question):  # "the last hour" is 60 minutes, said without a digit
+        out.append(("the last hour", {60.0}, True))
     return out
 
 
@@ -223,6 +242,8 @@ def _covered(calls: list[ToolCall]) -> tuple[set[str], set[str]]:
             concepts.add("lowest")
         if args.get("mode"):
             concepts.add("mode")
+        if call.tool == "energy_used":
+            concepts |= ENERGY_WHAT.get(call.args.get("what", "cooling"), set())
         if call.tool in WHERE_TOOLS:
             concepts.add("where")
         if call.tool in WHEN_TOOLS:
@@ -264,6 +285,21 @@ def uncovered(question: str, calls: list[ToolCall], facts: list[ChatFact] = ()) 
             missing.append("setpoint")
         elif MEASURED_WORD.search(question) and not acts and not concepts & {"supply_temp", "dp", "leaving_water"}:
             missing.append("measured")
+    stats = {c.args.get("stat", "mean") for c in calls if c.tool == "history_stat"}
+    if stats:  # the aggregate asked over a window must be the one computed
+        missing += [word for word, pattern in ASKED_STATS.items() if pattern.search(question) and word not in stats
+                    and not ({"max", "min"} & {word} and any(c.tool == "peak" for c in calls))]  # fmt: skip
+    if TRACKING_ERROR.search(question) and not any(c.tool == "tracking_gap" for c in calls):
+        missing.append("gap")
+    changes = [c.args["change"] for c in calls if c.tool in ("whatif_setpoint", "propose_change")
+               and isinstance(c.args.get("change"), (int, float))]  # fmt: skip
+    down, up = DOWN_ASKED.search(question), UP_ASKED.search(question)
+    if changes and down and not up and any(x > 0 for x in changes) or changes and up and not down and any(
+            x < 0 for x in changes):  # fmt: skip
+        missing.append("the direction asked")
+    orders = {c.args.get("order", "highest") for c in calls if c.tool == "rank"}
+    if orders == {"lowest"} and HIGH_WORD.search(question) and not LOW_WORD.search(question):
+        missing.append("highest")
     for first, second, wanted in PAIRED_CONCEPTS:
         if first.search(question) and second.search(question) and not wanted & concepts:
             missing.append(sorted(wanted)[0])

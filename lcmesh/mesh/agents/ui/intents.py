@@ -86,18 +86,18 @@ _QUANTITY_RULES: list[tuple[str, re.Pattern]] = [(k, re.compile(p)) for k, p in 
     ("approach", r"\bapproach"),
     ("in_band", r"\b(in|out of|outside|within|inside)\s+(the\s+)?([\d.]+\s*(-|–|to)\s*[\d.]+\s*(°\s*c|degc|c)?\s+)?"
                 r"(compliance\s+)?band\b|\bout[- ]of[- ]band\b"),
-    ("lw_setpoint", r"(leaving[- ]?water|\blw\b|tower)\s+(temperature\s+)?(set[- ]?points?|sp\b)"),
-    ("leaving_water", r"leaving[- ]?water|\blw\b|tower water|basin|cold water|tower outlet|tower.*\b(warm|hot|cold|cool)"
+    ("lw_setpoint", r"(leaving[- ]?water|\blwt?\b|tower)\s+(temperature\s+)?(set[- ]?points?|sp\b)"),
+    ("leaving_water", r"leaving[- ]?water|\blwt?\b|tower water|basin|cold water|tower outlet|tower.*\b(warm|hot|cold|cool)"
                       r"\w* water"),
     ("htw_supply_temp", r"\b(htw|hot[- ]water|facility) supply"),
     ("htw_return_temp", r"\b(htw|hot[- ]water|facility) return"),
     ("fan_speed", r"\bfan speeds?\b"),
-    ("pump_speed", r"\bpump speeds?\b"),
+    ("pump_speed", r"\bpump speeds?\b|\bpumps?\b.*\b(spinning|how fast|rpm)|how fast.*\bpumps?\b"),
     ("dp_setpoint", r"\b(dp|differential pressure|pressure)\s+(set[- ]?points?|sp\b)"),
     ("cooling_power", r"cooling power|total cooling|cooling energy|fans? and pumps?"),
     ("tower_power", r"\bfans?\b|towers?\b|\bct\b"),
     ("pump_power", r"\bpumps?\b"),
-    ("it_cooling", r"heat removed|\bit cooling|cdu heat"),
+    ("it_cooling", r"heat removed|\bit cooling|cdu heat|heat .*\bpicking up\b"),
     ("heat_rejected", r"heat rejected|rejected heat|\breject(s|ed|ion|ing)?\b"),
     ("it_power", r"\bit (power|load)|compute (power|load)|\bload\b|\bworkload\b|server power|it\b.*power"),
     ("wet_bulb", r"wet[- ]?bulb|\bwb\b|weather|\boutside\b(?!.*(\bband\b|\d\s*(-|–|to)\s*\d))|ambient"),
@@ -122,9 +122,11 @@ _IMPERATIVE = re.compile(
 )  # fmt: skip
 _WHATIF = re.compile(r"\bwhat (if|would happen|happens|would|will happen)\b|\bsuppose\b|\bif (i|we|you|the operator)\b"
                      r"|\bpredict|\bhypothetic|\bsimulat")  # fmt: skip
-_WHY = re.compile(r"^\s*why\b|\bwhy (did|does|is|was|has|do)\b|\breason\b|\bexplain\b|\bdecisions?\b")
+_WHY = re.compile(r"^\s*why\b|\bwhy (did|does|is|was|has|do)\b|\breason|\bexplain\b|\bdecisions?\b|\bwhat drove\b"
+                  r"|\bbehind the (last |latest )?(change|move|decision)")
 _DECISION_ID = re.compile(r"\bdecision\s+(?:id\s+)?([a-z0-9][\w-]{3,79})\b")
-_NOT_FROM_HERE = re.compile(r"\bwhen will\b|\btomorrow\b|\bnext (week|month|year)\b|\blast year\b")
+_NOT_FROM_HERE = re.compile(r"\bwhen will\b|\btomorrow\b|\bnext (week|month|year)\b|\blast year\b|\bfrom now\b"
+                            r"|\bwill\b.*\bbe\b.*\b(in an hour|later|tonight)")
 _ENERGY_EXTRA = re.compile(r"\bit heat\b.*\breject")
 _ALERTS = re.compile(r"\balerts?\b|\balarms?\b|\bfaults?\b|\bwarnings?\b|\banomal|\bproblems?\b|\bwrong\b|\bissues?\b"
                      r"|\bflag(s|ged|ging)?\b")
@@ -139,14 +141,14 @@ _BAND = re.compile(r"\bhow many\b.*\b(band|above|below|over|under|outside|too ho
                    r"\b(count|number of)\b.*\b(blade|band)|\b(out of|outside|in|inside|within) (the )?([\d.]+\s*"
                    r"(-|–|to)\s*[\d.]+\s*(°\s*c|degc|c)?\s+)?(compliance )?band\b|\bout[- ]of[- ]band\b")  # fmt: skip
 _BAND_LIMITS = re.compile(r"(?<![\w.])([\d.]+)\s*(?:°\s*c|degc|c)?\s*(?:-|–|to|and)\s*([\d.]+)\s*(?:°\s*c|degc|c)\b")
-_ENTITIES = re.compile(r"\bcompare\b|\bvs\.?\b|\bversus\b|\bagainst\b|\bdiffer")
+_ENTITIES = re.compile(r"\bcompare\b|\bvs\.?\b|\bversus\b|\bagainst\b|\bdiffer|side by side|next to|\bthan\b")
 _STATS = {"mean": re.compile(r"\b(average[ds]?|mean|avg)\b"), "max": re.compile(r"\b(max(imum)?|highest|peak)\b"),
           "min": re.compile(r"\b(min(imum)?|lowest)\b")}  # fmt: skip
 _TIME = re.compile(r"\bago\b|\b(last|past|previous)\b|\bsince\b|\btrend|\bvs\.?\b|\bversus\b|\bcompared?\b|\bearlier\b"
                    r"|\bbefore\b|\bchanged?\b")  # fmt: skip
 _RANK = re.compile(r"\b(rank(ed)?|top \d+|hottest|hott[ets]{3}|warmest|coolest|coldest|highest|lowest|most|least|max(imum)?|"
                    r"min(imum)?|biggest|smallest|largest|worst|best)\b")  # fmt: skip
-_LOW_WORDS = re.compile(r"\b(coolest|coldest|lowest|least|min(imum)?|smallest|best)\b")
+_LOW_WORDS = re.compile(r"\b(coolest|coldest|lowest|least|(?<!\d )(?<!\d)min(imum)?|smallest|best)\b")
 _STATE = re.compile(r"\bnow\b|\bcurrent(ly)?\b|\bstate\b|\bstatus\b|\boverview\b|\bsummary\b|\bhow (is|are)\b"
                     r"|\bhow'?s\b|\bsituation\b")
 
@@ -156,10 +158,11 @@ _WINDOW = re.compile(r"(?:(?<![\w.])(\d+(?:\.\d+)?)\s*|\b(an?|one|half an?|two|t
 _WORD_NUMBERS = {"a": 1.0, "an": 1.0, "one": 1.0, "half a": 0.5, "half an": 0.5, "two": 2.0, "three": 3.0,
                  "six": 6.0, "twelve": 12.0}  # fmt: skip
 _UNIT_S = {"h": 3600.0, "m": 60.0, "s": 1.0, "d": 86400.0}
-_INDEX = {name: re.compile(rf"\b{name}s?\s*(?:#|no\.?|number)?\s*(\d+)\b") for name in ("cabinet", "branch", "tower")}
+_INDEX = {name: re.compile(rf"\b{words}s?\s*(?:#|no\.?|number)?\s*(\d+)\b") for name, words in (
+    ("cabinet", "cabinet"), ("branch", "(?:branch|bg|blade group|valve)"), ("tower", "tower"))}
 _CDU = re.compile(r"\b(?:cdu|rack|cab)s?\s*#?\s*(\d+)\b")
 _CT = re.compile(r"\bcts?\s*#?\s*(\d+)\b")
-_TOP = re.compile(r"\btop (\d+)\b|\bthe (\d+) (?:\w+ )?(?:cabinet|cdu|rack|tower|blade[- ]?group|branche)s\b")
+_TOP = re.compile(r"\b(?:top|bottom) (\d+)\b|\b(?:the )?(\d+) (?:\w+ )?(?:cabinet|cdu|rack|tower|blade[- ]?group|branche|bg)s\b")
 _AMOUNT = re.compile(r"(?<![\w.])([-+]?\d+(?:\.\d+)?)\s*(°\s*c\b|deg(?:rees?)?\s*c\b|degc\b|celsius\b|degrees?\b|"
                      r"k\b|kelvin\b|psi\b|kpa\b|pa\b|%|percent\b)?")  # fmt: skip
 _UP = re.compile(r"\b(rais(e|ed|es|ing)|increas(e|ed|es|ing)|higher|up|bump(ed)?|warmer|more|add)\b|\+")
@@ -275,9 +278,9 @@ def find_change(text: str, quantity: str | None) -> Change | None:
 def _all_indices(text: str, name: str) -> tuple[int, ...]:
     """Every cabinet (or tower) number in the text, in order: "cabinet 2 and cabinet 4", "cabinets 1, 3 and 5"."""
     found: list[int] = []
-    pattern = rf"\b{name}s?\s*#?\s*(\d+(?:\s*(?:,|and|&|vs\.?|versus|or)\s*\d+)*)"
+    pattern = rf"\b(?:{name}|ct)s?\s*#?\s*(\d+(?:\s*(?:,|and|&|vs\.?|versus|or)\s*(?:ct\s*)?\d+)*)"
     if name == "cabinet":
-        pattern = r"\b(?:cabinet|cdu|rack|cab)s?\s*#?\s*(\d+(?:\s*(?:,|and|&|vs\.?|versus|or)\s*\d+)*)"
+        pattern = r"\b(?:cabinet|cdu|rack|cab)s?\s*#?\s*(\d+(?:\s*(?:,|and|&|vs\.?|versus|or)\s*(?:cdu|cab)?\s*\d+)*)"
     for match in re.finditer(pattern, text):
         found += [int(n) for n in re.findall(r"\d+", match.group(1)) if int(n) not in found]
     return tuple(found)
@@ -307,15 +310,19 @@ def _stat(text: str) -> str | None:
 
 
 # --- the operator tools' questions, in English, Spanish, German and French (ops_intent) -------------------------------
-_OPS_CONTROLLER = re.compile(r"\b(compar|vs\.?|versus|against|instead|sav(e|es|ing)|better|worse|than|would|frente|"
+_OPS_CONTROLLER = re.compile(r"\b(compar|vs\.?|versus|against|instead|sav(e|es|ing)|better|worse|than|would|what[- ]if|"
+                             r"y si|was wäre|et si|simulat|frente|"
                              r"compar|en vez|ahorr|mejor|gegenüber|verglichen|statt|spar|besser|würde|plutôt|au lieu|"
                              r"économ|mieux|par rapport)")  # fmt: skip
 _OPS_ENERGY = re.compile(r"\benerg(y|ía|ie)\b|\bénergie\b|\bkwh\b|\bconsum|\bverbrauch|\bconsomm")
-_OPS_NOT_ENERGY = re.compile(r"\bpue\b|balance|bilan|bilanz|effectiveness")
+_OPS_NOT_ENERGY = re.compile(r"\bpue\b|balance|bilan|bilanz|effectiveness|\bkw\b(?!h)")
 _OPS_WHAT = (("pumps", r"\bpump|\bbomb|\bpumpe|\bpompe"), ("tower_fans", r"\bfans?\b|ventil|lüfter"),
              ("heat_rejected", r"reject|rechaz|abgegeben|rejet"), ("it", r"\bit\b|\bti\b|\bit-|server|compute"))
-_OPS_GAP = re.compile(r"\bgaps?\b|deviat|\boff\b|\bfar\b|f[au]rthest|further|differ|track|abweich|écart|desviac|diferencia|unterschied"
+_OPS_GAP = re.compile(r"\bgaps?\b|deviat|\boff\b|\bfar\b|f[au]rthest|further|tracking error|minus|fail\w* to (hit|hold|reach)"
+                      r"|keep\w* up with|differ|track|abweich|écart|desviac|diferencia|unterschied"
                       r"|distance|away from|lejos|entfernt|loin")  # fmt: skip
+_OPS_TRACKING = re.compile(r"tracking error|regelabweichung|control (error|deviation)|error de (control|seguimiento)|"
+                           r"keep\w* up with (its|the) (lwt|sp)")  # fmt: skip
 _OPS_SETPOINT = re.compile(r"set[- ]?points?|\bsp\b|\btarget|consigna|sollwert|consigne|\bobjetivo|\bziel")
 _OPS_TOWER = re.compile(r"\btowers?\b|\bcts?\s*\d|\bct\b|\btorres?\b|\btürme?\b|\bturm|\btours?\b|leaving[- ]?water|"
                         r"\blwt?\b|agua de salida|austrittswasser|eau de sortie")  # fmt: skip
@@ -324,7 +331,7 @@ _OPS_WHERE_WHEN = re.compile(r"\bwhere\b|\bwhen\b|what time|\bdónde\b|\bcuándo
 _OPS_EXTREME = re.compile(r"\bpeak|\bmax|\bhighest|\bhottest|\bwarmest|\bmin(imum)?\b|\blowest|\bcoolest|\bcoldest|pico"
                           r"|máxim|mínim|más (alt|caliente|baj|frí)|spitze|höchst|maximal|minimal|niedrigst|heißest|"
                           r"kältest|\bpic\b|maximum|plus (haut|chaud|bas|froid)")  # fmt: skip
-_OPS_LOW = re.compile(r"\bmin(imum)?\b|\blowest|\bcoolest|\bcoldest|mínim|más (baj|frí)|minimal|niedrigst|kältest|"
+_OPS_LOW = re.compile(r"(?<!\d )(?<!\d)\bmin(imum)?\b|\blowest|\bcoolest|\bcoldest|mínim|más (baj|frí)|minimal|niedrigst|kältest|"
                       r"plus (bas|froid)|\btrough")  # fmt: skip
 _OPS_PAST = re.compile(r"\b(last|past|previous|today|this (morning|shift))\b|últim|\bhoy\b|letzte|\bheute\b|derni|"
                        r"aujourd|\bsince\b|\bdesde\b|\bseit\b|\bdepuis\b")  # fmt: skip
@@ -337,7 +344,8 @@ _OPS_TOWER_N = re.compile(r"\b(?:tower|ct|torre|turm|tour)s?\s*#?\s*(\d+)\b")
 _OPS_BRANCHES = re.compile(r"blade[- ]?groups|\bbranches\b|\bblades\b|grupos de blades|\bramas\b|blade-gruppen|"
                            r"\bzweige\b|groupes de lames|\bbgs\b")  # fmt: skip
 _OPS_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*(min|mins|minutes?|minutos?|minuten?|h|hrs?|hours?|horas?|stunden?|heures?)\b")
-_OPS_HOUR = re.compile(r"\b(last|past|previous) hour\b|última hora|letzten stunde|dernière heure")
+_OPS_HOUR = re.compile(r"\b(last|past|previous|next) hour\b|última hora|letzten stunde|dernière heure|próxima hora|"
+                       r"nächsten stunde|prochaine heure")
 _OPS_LAST_N_HOURS = re.compile(r"\b(two|three|six|twelve|dos|tres|zwei|drei|deux|trois)\s+(hours|horas|stunden|heures)")
 _NUMBER_WORDS = {"two": 2, "three": 3, "six": 6, "twelve": 12, "dos": 2, "tres": 3, "zwei": 2, "drei": 3, "deux": 2,
                  "trois": 3}  # fmt: skip
@@ -357,17 +365,18 @@ def ops_window(t: str) -> float | None:
 def ops_intent(t: str) -> Intent | None:
     """Questions for the operator tools (energy over a window, setpoint gaps, where/when a peak was, the weather on
     the towers, another controller on the twin), in any of the four languages; None when it is none of them."""
-    controller = next((name for name in CONTROLLERS if re.search(rf"\b{name}\b", t)), None)
+    named = sorted((m.start(), name) for name in CONTROLLERS for m in [re.search(rf"\b{name}\b", t)] if m)
+    controller = named[0][1] if named else None  # the first named: "would rule save energy compared to tree"
     minutes = ops_window(t)
     if controller and _OPS_CONTROLLER.search(t) and not _IMPERATIVE.search(t):
         window = _OPS_WINDOW.search(t)
         return Intent("whatif_controller", controller=controller, window_s=minutes * 60.0 if window else None)
-    if _OPS_GAP.search(t) and _OPS_SETPOINT.search(t):
+    if (_OPS_GAP.search(t) and _OPS_SETPOINT.search(t)) or _OPS_TRACKING.search(t):
         level = "tower" if _OPS_TOWER.search(t) else "cabinet"
         cabinet, tower = _OPS_CABINET.search(t), _OPS_TOWER_N.search(t)
         return Intent("gap", level=level, cabinet=int(cabinet.group(1)) if cabinet and level == "cabinet" else None,
                       tower=int(tower.group(1)) if tower and level == "tower" else None)  # fmt: skip
-    if _OPS_ENERGY.search(t) and not _OPS_NOT_ENERGY.search(t):
+    if (_OPS_ENERGY.search(t) and not _OPS_NOT_ENERGY.search(t)) or re.search(r"how much heat\b.*\b(last|past)\b", t):
         what = next((name for name, pattern in _OPS_WHAT if re.search(pattern, t)), "cooling")
         return Intent("energy_used", what=what, window_s=(minutes or 60.0) * 60.0)
     if _OPS_WHERE_WHEN.search(t) and _OPS_EXTREME.search(t) and (_OPS_PAST.search(t) or minutes is not None):
@@ -398,6 +407,13 @@ _GLOSS: list[tuple[re.Pattern, str]] = [(re.compile(rf"(?<!\w){p}(?!\w)"), en) f
     "r[eè]gle": "set", "augmente": "raise", "baisse": "lower", "passe en": "switch to", "passe sur": "switch to",
     "cambia a": "switch to", "wechsle (zu|auf)": "switch to", "schalte auf": "switch to", "auf": "to", "à": "to",
     "modo manual": "manual mode", "mode manuel": "manual mode", "manuell": "manual", "manuel": "manual",
+    "handbetrieb": "manual mode", "stellen": "set", "pumpenleistung": "pump power", "pumpenstromaufnahme": "pump power",
+    "pumpendrehzahl": "pump speed", "l[uü]fterleistung": "fan power", "l[uü]fterdrehzahl": "fan speed",
+    "velocidad de (los )?ventiladores": "fan speed", "vitesse des ventilateurs": "fan speed",
+    "potencia de (las )?bombas": "pump power", "puissance des pompes": "pump power",
+    "chaleur( de la)? cdu": "cdu heat", "calor de (los )?cdu": "cdu heat", "cdu-w[aä]rme": "cdu heat",
+    "menos": "least", "weniger": "least", "wenigsten": "least", "moins( de)?": "least", "a(?= \\d)": "to",
+    "regelabweichung": "tracking error",
     "temperatura media": "average temperature", "mittlere": "average", "durchschnittliche": "average",
     "impulsi[oó]n": "supply", "vorlauf(temperatur)?": "supply", "d[ée]part": "supply", "retorno": "return",
     "r[uü]cklauf": "return", "retour": "return", "consigna": "setpoint", "sollwert": "setpoint",
