@@ -271,7 +271,9 @@ def markdown(report: dict[str, Any]) -> str:
              "Set `b` (`lcmesh/bench/data/chat_questions_b.jsonl`, all test) was written for issue 24 by an author "
              "who had seen neither the first set nor the planner's generator, with tools the first set did not "
              "have (energy over a window, setpoint gaps, where and when, top-N blade groups, another controller on "
-             "the twin, the weather). *Declined*: the reply says the question asks for something the results do "
+             "the twin, the weather). Set `c` (`chat_questions_c.jsonl`, all dev) was written to the same brief by "
+             "a second outside author after set b was first scored, and is what the question check and the rules "
+             "were tuned on since (set b and the test split were not read). *Declined*: the reply says the question asks for something the results do "
              "not give and offers them as what it can give instead; never grounded, never counted right unless "
              "the question is one to refuse.", "",
              "| planner | part | questions | tool calls right | answers right | refusals right | wrong but "
