@@ -755,11 +755,11 @@ def decision(req: DecisionRequest, ctx: Any) -> DecisionResponse:
             continue
         shown = (picked or changes)[:6]
         cabinet = req.cabinet or next((_cabinet_of(c.what) for c in shown if _cabinet_of(c.what)), None)
-        reasons, source = decision_reasons(data, row, prev, cabinet)
+        reasons, source, about = decision_reasons(data, row, prev, cabinet)
         return DecisionResponse(found=True, decision_id=row["decision_id"], step=row["step"],
                                 controller=row["source_controller"], fallback=row["fallback"], changes=shown,
                                 explanation=row.get("explanation"), searched_decisions=k + 1, reasons=reasons,
-                                reasons_for=f"cabinet {cabinet}" if reasons and cabinet else None,
+                                reasons_for=f"cabinet {about}" if reasons and about else None,
                                 reasons_source=source)  # fmt: skip
     return DecisionResponse(found=False, searched_decisions=len(rows) - 1)
 
@@ -786,22 +786,22 @@ def readable(text: str) -> str:
     return re.sub(r"[*_`]{1,2}(\S[^*_`]*?)[*_`]{1,2}", r"\1", plain).replace("\n- ", " ").strip()
 
 
-def decision_reasons(data: PlantData, row: dict, prev: dict, cabinet: int | None) -> tuple[str | None, str | None]:
-    """(reasons, source) for `cabinet` of a decision: the published explanation when it is about that cabinet (or no
-    cabinet is asked), else the toolbox renderer's for that cabinet from the decision's stored state."""
+def decision_reasons(data: PlantData, row: dict, prev: dict,
+                     cabinet: int | None) -> tuple[str | None, str | None, int | None]:  # fmt: skip
+    """(reasons, source, cabinet) of a decision: the published explanation when it is about `cabinet` (or no cabinet
+    is asked), else the toolbox renderer's for `cabinet` (the hottest when none is asked and nothing is published
+    yet) from the decision's stored state."""
     published = row.get("explanation")
     about = _CABINET_IN.search(published or "")
     if published and (cabinet is None or (about and int(about.group(1)) == cabinet)):
-        return readable(published), "published"
-    if cabinet is None:
-        return None, None
+        return readable(published), "published", int(about.group(1)) if about else cabinet
     from lcmesh.mesh.tools.explain import render_explanation
     from lcmesh.mesh.tools.facts import cabinet_decision_facts
     from lcmesh.twin.plant import PlantAction
 
     state = data.history().state_at(row["step"], row.get("run_id"))
     if state is None:  # this step was stored without its full state: the published text is all there is
-        return (readable(published), "published") if published else (None, None)
+        return (readable(published), "published", cabinet) if published else (None, None, None)
 
     def action(a: dict) -> PlantAction:
         return PlantAction(*(np.asarray(a[k], dtype=float) for k in ("supply_temp_setpoint_k", "dp_setpoint_pa",
@@ -811,12 +811,14 @@ def decision_reasons(data: PlantData, row: dict, prev: dict, cabinet: int | None
 
     try:
         out = plant_state_to_observation(state, data.system).out
+        if cabinet is None:  # nothing published yet and no cabinet asked: the hottest one, as the Control agent picks
+            cabinet = int(np.argmax(np.asarray(out["branch_temp_k"]).max(axis=1))) + 1
         facts = cabinet_decision_facts(data.system, out, action(row["action"]), action(prev["action"]),
                                        float(state.wet_bulb_k), cabinet - 1)  # fmt: skip
-        return readable(render_explanation(facts, "short")), "rendered"
+        return readable(render_explanation(facts, "short")), "rendered", cabinet
     except (ValueError, KeyError) as exc:  # a state or action the renderer cannot read: say why, not crash
         log.warning("no reasons for cabinet %s of decision %s: %s", cabinet, row.get("decision_id"), exc)
-        return (readable(published), "published") if published else (None, None)
+        return (readable(published), "published", cabinet) if published else (None, None, None)
 
 
 def controller(req: ControllerRequest, ctx: Any) -> ControllerResponse:

@@ -348,13 +348,13 @@ PHRASES: dict[str, dict[str, str]] = {
                                  "muertas.", " änderte nichts über die Totbänder hinaus.",
                                  " n'a rien changé au-delà des bandes mortes."),
     "decision.reasons": _by_lang(" Its reasons for {entity}, written by the toolbox from the decision's state (the "
-                                 "published explanation is about another cabinet): {quote}",
+                                 "published one is about another cabinet, or not out yet): {quote}",
                                  " Sus razones para {entity}, escritas por la caja de herramientas a partir del "
-                                 "estado de la decisión (la explicación publicada trata de otro gabinete): {quote}",
+                                 "estado de la decisión (la publicada trata de otro gabinete, o aún no salió): {quote}",
                                  " Ihre Gründe für {entity}, vom Werkzeugkasten aus dem Zustand der Entscheidung "
-                                 "geschrieben (die veröffentlichte Erklärung betrifft einen anderen Schrank): {quote}",
+                                 "geschrieben (die veröffentlichte betrifft einen anderen Schrank oder fehlt noch): {quote}",
                                  " Ses raisons pour {entity}, écrites par la boîte à outils à partir de l'état de la "
-                                 "décision (l'explication publiée porte sur une autre armoire) : {quote}"),
+                                 "décision (celle publiée porte sur une autre armoire, ou n'est pas encore là) : {quote}"),
     "decision.explanation": _by_lang(" Its explanation: {quote}", " Su explicación: {quote}",
                                      " Ihre Erklärung: {quote}", " Son explication : {quote}"),
     "raised": _by_lang("raised", "subió", "erhöht", "a relevé"),
