@@ -55,10 +55,15 @@ class EnergyUsedResponse(_Model):
     to_step: int
 
 
+def _window(minutes: float, step_s: float, most: int) -> tuple[int, int]:
+    """(steps back, read every k-th) for a window of `minutes`, at most about `most` rows read."""
+    back = max(1, int(round(minutes * 60.0 / step_s)))
+    return back, max(1, math.ceil((back + 1) / most))
+
+
 def _window_rows(data: Any, minutes: float, fields: tuple[str, ...]) -> list[dict]:
     state = data.latest_state()
-    back = max(1, int(round(minutes * 60.0 / data.system.step_s)))
-    every = max(1, math.ceil((back + 1) / MAX_SAMPLES))
+    back, every = _window(minutes, data.system.step_s, MAX_SAMPLES)
     rows = data.history().states(start_step=max(0, state.step - back), end_step=state.step, fields=fields,
                                  run_id=state.run_id, every=every, limit=back + 2)  # fmt: skip
     rows = [r for r in rows if all(r[f] is not None for f in fields)]
@@ -157,8 +162,7 @@ def peak(req: PeakRequest, ctx: Any) -> PeakResponse:
     data = _data(ctx)
     system, now = data.system, data.latest_state()
     q = QUANTITIES[req.quantity]
-    back = max(1, int(round(req.minutes * 60.0 / system.step_s)))
-    every = max(1, math.ceil((back + 1) / MAX_PEAK_STATES))
+    back, every = _window(req.minutes, system.step_s, MAX_PEAK_STATES)
     states = data.history().payload_states(start_step=max(0, now.step - back), end_step=now.step, run_id=now.run_id,
                                            every=every, limit=MAX_PEAK_STATES + 2)  # fmt: skip
     if len(states) < 2:

@@ -795,19 +795,16 @@ def decision_reasons(data: PlantData, row: dict, prev: dict,
     about = _CABINET_IN.search(published or "")
     if published and (cabinet is None or (about and int(about.group(1)) == cabinet)):
         return readable(published), "published", int(about.group(1)) if about else cabinet
+    from lcmesh.mesh.messages import ActionModel, plant_state_to_observation
     from lcmesh.mesh.tools.explain import render_explanation
     from lcmesh.mesh.tools.facts import cabinet_decision_facts
-    from lcmesh.twin.plant import PlantAction
 
     state = data.history().state_at(row["step"], row.get("run_id"))
     if state is None:  # this step was stored without its full state: the published text is all there is
         return (readable(published), "published", cabinet) if published else (None, None, None)
 
-    def action(a: dict) -> PlantAction:
-        return PlantAction(*(np.asarray(a[k], dtype=float) for k in ("supply_temp_setpoint_k", "dp_setpoint_pa",
-                                                                        "valve_fractions", "lw_setpoint_k")))
-
-    from lcmesh.mesh.messages import plant_state_to_observation
+    def action(a: dict):
+        return ActionModel.model_validate(a).to_action()
 
     try:
         out = plant_state_to_observation(state, data.system).out
