@@ -88,12 +88,18 @@ def collect_experience(
     spinup_hours: float = 1.0,
     on_step: Callable[[int], None] | None = None,
     guardrails=MESH_GUARDRAILS,
+    window_hours: float | None = None,
 ) -> Experience:
     """Roll ``teacher`` over each trace (``n_steps`` each, default all) and record what it saw and did.
 
     A trace ``SPEC@SCENARIO`` runs under that scenario; a bare spec under ``lcopt`` with ``wet_bulb_offset_k``.
     The teacher runs behind ``guardrails`` (the mesh's by default; None: bare), so the states recorded are those
     the mesh would visit and the actions recorded are those it would apply.
+
+    ``window_hours``: roll only each trace's busiest window of that length (highest mean load,
+    ``lcmesh.bench.llm.busiest_window``), after a warm-up of ``WARMUP_STEPS`` by the same controller (recorded
+    too); ``n_steps`` is then ignored. The hours a plant is hardest to hold, which uniform draws over whole days
+    hardly contain.
     """
     from lcmesh.distill.features import FeatureBuilder
 
@@ -110,7 +116,9 @@ def collect_experience(
         for spec in traces:
             name, _, scenario = spec.partition("@")
             trace = load_trace(name, system, scenario=scenario or scenario_with_offset("lcopt", wet_bulb_offset_k))
-            steps = trace.n_steps if n_steps is None else min(n_steps, trace.n_steps)
+            if window_hours is not None:
+                trace = _busiest(trace, window_hours)
+            steps = trace.n_steps if n_steps is None or window_hours is not None else min(n_steps, trace.n_steps)
             power = np.zeros(system.n_blade_groups)
             teacher.reset()
             first = Observation(plant.out, float(trace.wet_bulb_k[0]), trace.blade_power_w(0, out=power), 0.0)
@@ -142,6 +150,18 @@ def collect_experience(
         cabinet_rows=np.stack(rec["cab"]), tower_rows=np.stack(rec["tow"]),
         cabinet_weights=np.maximum(np.stack(rec["wc"]), 0.0), tower_weights=np.maximum(np.stack(rec["wt"]), 0.0),
     )  # fmt: skip
+
+
+def _busiest(trace, hours: float):
+    """The trace's busiest ``hours`` with the benchmark's warm-up before them."""
+    from lcmesh.bench.llm import WARMUP_STEPS, busiest_window
+
+    if hours <= 0:
+        raise ValueError(f"`window_hours` must be > 0, got {hours}")
+    steps = min(max(round(hours * 3600.0 / trace.step_s), 1), trace.n_steps)
+    start = busiest_window(trace, steps)
+    warm = min(WARMUP_STEPS, start)
+    return trace.slice(start - warm, warm + steps)
 
 
 def resample(exp: Experience, n: int, rng: np.random.Generator, agent: str = "cabinet", uniform: bool = False) -> np.ndarray:

@@ -27,8 +27,12 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from lcmesh.distill.experience import Experience
 
 ARTIFACT_DIR = Path(__file__).resolve().parent.parent / "artifacts" / "llm-control"
 Progress = Callable[[str, int, int], None]
@@ -63,6 +67,17 @@ class LlmControlDistillConfig:
     instead of uniformly."""
     init_adapter: str = ""
     """Continue training this adapter folder (its LoRA layers and rank win) instead of fresh LoRA weights."""
+    dagger_seeds: str = ""
+    """DAgger: training seeds the *student* (``init_adapter``, else the packaged adapter) controls over their busiest
+    ``dagger_hours``; the states it visits are labelled by the teacher and added (empty: none)."""
+    dagger_scenario: str = "design-day"
+    dagger_hours: float = 2.0
+    dagger_period: int = 8
+    """The student decides every N steps in its DAgger rollouts (the closed-loop benchmark's period)."""
+    dagger_samples: int = 1200
+    dagger_tower_samples: int = 600
+    dagger_cache: str = ""
+    """Keep the student's rollouts in this .npz (reused when it exists and matches the seeds)."""
     seed: int = 0
     threads: int = 0
     out: str = ""
@@ -71,21 +86,54 @@ class LlmControlDistillConfig:
         for name in ("steps_per_trace", "samples", "dev_samples", "top_layers", "r", "batch_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
-        if self.tower_samples < 0:
-            raise ValueError(f"`tower_samples` must be >= 0, got {self.tower_samples}")
+        for name in ("tower_samples", "dagger_samples", "dagger_tower_samples"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)}")
+        if self.dagger_hours <= 0 or self.dagger_period < 1:
+            raise ValueError(f"`dagger_hours` must be > 0 and `dagger_period` >= 1, got {self.dagger_hours}, "
+                             f"{self.dagger_period}")
 
 
-def _trace_specs(cfg: LlmControlDistillConfig) -> list[str]:
+def _trace_specs(cfg: LlmControlDistillConfig, seeds: str | None = None, scenarios: str | None = None,
+                 what: str = "train_seeds") -> list[str]:  # fmt: skip
     from lcmesh.bench.suite import held_out_seeds
     from lcmesh.distill.tree_distill import parse_seeds
     from lcmesh.twin.traces import TRAIN_SEEDS
 
-    seeds = parse_seeds(cfg.train_seeds)
+    seeds = parse_seeds(cfg.train_seeds if seeds is None else seeds)
     bad = sorted(set(seeds) - set(TRAIN_SEEDS)) + sorted(set(seeds) & set(held_out_seeds()))
     if bad:
-        raise ValueError(f"`train_seeds` must be training seeds ({min(TRAIN_SEEDS)}-{max(TRAIN_SEEDS)}), got {bad}")
-    names = [n.strip() for n in cfg.scenarios.split(",") if n.strip()] or ["frontier"]
+        raise ValueError(f"`{what}` must be training seeds ({min(TRAIN_SEEDS)}-{max(TRAIN_SEEDS)}), got {bad}")
+    names = [n.strip() for n in (cfg.scenarios if scenarios is None else scenarios).split(",") if n.strip()]
+    names = names or ["frontier"]
     return [f"synthetic:{s}@{names[i % len(names)]}" for i, s in enumerate(seeds)]
+
+
+def student_rollouts(cfg: LlmControlDistillConfig, system, say: Progress) -> Experience | None:
+    """DAgger's data: the student LLM controller (no deadline, every ``dagger_period`` steps, behind the mesh's
+    guardrails) over the busiest hours of the DAgger seeds; cached in ``dagger_cache``."""
+    from lcmesh.distill.experience import Experience, collect_experience
+    from lcmesh.llm.controller import LlmController, make_control_backend
+
+    if not cfg.dagger_seeds:
+        return None
+    specs = _trace_specs(cfg, cfg.dagger_seeds, cfg.dagger_scenario, "dagger_seeds")
+    cache = Path(cfg.dagger_cache) if cfg.dagger_cache else None
+    if cache is not None and cache.is_file():
+        exp = Experience.load(cache)
+        if exp.traces == specs and exp.meta.get("hours") == cfg.dagger_hours:
+            say(f"student rollouts from {cache}", 1, 1)
+            return exp
+    backend = make_control_backend(cfg.init_adapter or "default", threads=cfg.threads or 2)
+    student = LlmController(system, backend=backend, period_steps=cfg.dagger_period)
+    total = len(specs) * (round(cfg.dagger_hours * 240) + 120)
+    exp = collect_experience(student, system, specs, window_hours=cfg.dagger_hours,
+                             on_step=lambda k: say("student rollouts (DAgger, training days)", k, total))  # fmt: skip
+    exp.meta.update(hours=cfg.dagger_hours, period=cfg.dagger_period, student=backend.model_id,
+                    decided_by=student.stats_snapshot())  # fmt: skip
+    if cache is not None:
+        exp.save(cache)
+    return exp
 
 
 def _check_dev(spec: str) -> None:
@@ -222,6 +270,17 @@ def distill_llm_control(cfg: LlmControlDistillConfig, progress: Progress | None 
     else:
         idx_t = np.column_stack([rng.integers(0, T, cfg.tower_samples), rng.integers(0, N, cfg.tower_samples)])
     train = build_samples(exp, cab, appr, system, idx_c, idx_t)
+    n_dagger = {"cabinet": 0, "tower": 0}
+    dag = student_rollouts(cfg, system, say)
+    if dag is not None:
+        gcab, gappr = raw_targets(teacher, dag)
+        Tg = dag.cabinet_rows.shape[0]
+        gi_c = np.column_stack([rng.integers(0, Tg, cfg.dagger_samples), rng.integers(0, C, cfg.dagger_samples)])
+        gi_t = np.column_stack([rng.integers(0, Tg, cfg.dagger_tower_samples),
+                                rng.integers(0, N, cfg.dagger_tower_samples)])  # fmt: skip
+        train += build_samples(dag, gcab, gappr, system, gi_c, gi_t)
+        n_dagger = {"cabinet": len(gi_c), "tower": len(gi_t), "traces": dag.traces, "hours": cfg.dagger_hours,
+                    "student_decided_by": dag.meta.get("decided_by")}  # fmt: skip
     Td = dev.cabinet_rows.shape[0]
     n_dev_t = max(cfg.dev_samples // 4, 1)
     dev_c = np.column_stack([rng.integers(0, Td, cfg.dev_samples), rng.integers(0, C, cfg.dev_samples)])
@@ -287,7 +346,7 @@ def distill_llm_control(cfg: LlmControlDistillConfig, progress: Progress | None 
         "adapter_id": f"llm-control-{time.strftime('%Y%m%d')}-s{cfg.seed}",
         "kind": "control", "protocol": "lcmesh.llm.control_format v1",
         "teacher": exp.teacher, "train_traces": specs, "dev_day": cfg.dev_day,
-        "config": asdict(cfg), "samples": {"cabinet": len(idx_c), "tower": len(idx_t)},
+        "config": asdict(cfg), "samples": {"cabinet": len(idx_c), "tower": len(idx_t), "dagger": n_dagger},
         "dev_scores": scores, "train_seconds": time.monotonic() - t_start,
         "final_loss": float(np.mean([r["loss"] for r in log[-20:]])),
         **({"parent": parent} if parent else {}),

@@ -44,10 +44,11 @@ class PassCost:
         """Expected seconds of a pass over ``n_tokens`` (all rows of a batch together)."""
         return self.seconds_per_token * max(n_tokens, MIN_TOKENS)
 
-    def observe(self, n_tokens: int, seconds: float, now: float) -> None:
-        """Fold in a pass timed at ``now``; the first measurement replaces the prior."""
+    def observe(self, n_tokens: int, seconds: float, now: float, *, replace: bool = False) -> None:
+        """Fold in a pass timed at ``now``; the first measurement replaces the prior, and so does a calibration pass
+        (``replace``: it measures the machine as it is now, where an old estimate may come from a busier moment)."""
         rate = max(seconds, 0.0) / max(n_tokens, MIN_TOKENS)
-        if self.measured_at is None:
+        if self.measured_at is None or replace:
             self.seconds_per_token = rate
         else:
             self.seconds_per_token += self.weight * (rate - self.seconds_per_token)

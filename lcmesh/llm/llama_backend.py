@@ -20,6 +20,7 @@ controller's adapter and the planner's) loads two backends.
 from __future__ import annotations
 
 import ctypes
+import functools
 import threading
 import time
 from collections.abc import Sequence
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.llm.base import Conversation, Generation, LlmBackendSettings
-from lcmesh.llm.budget import Clock, PassCost
+from lcmesh.llm.budget import MIN_TOKENS, PROBE_TOKENS, Clock, PassCost
 from lcmesh.llm.choice import Choice, ChoiceDecoder, _common_prefix
 from lcmesh.llm.control_format import Field
 from lcmesh.llm.model_cache import shipped_gguf
@@ -89,7 +90,11 @@ class LlamaCppBackend:
     runtime = "llama.cpp"
 
     def __init__(self, gguf: Path | None = None, *, lora: Path | None = None, threads: int = 0,
-                 clock: Clock = time.monotonic, n_ctx: int = N_CTX, adapter_id: str = "base"):  # fmt: skip
+                 clock: Clock = time.monotonic, n_ctx: int = N_CTX, adapter_id: str = "base",
+                 calibrate: bool = True):  # fmt: skip
+        """``calibrate``: time a pass at load for the first pass-cost estimate (after a short warm-up pass, which
+        pays the first touch of the weights: a cold first pass here took 12 s where a warm one takes 0.7 s, and as
+        the first estimate it refused every later call for its 3 s budget)."""
         try:
             from llama_cpp import Llama
         except ImportError as exc:  # pragma: no cover - make setup installs it
@@ -113,6 +118,10 @@ class LlamaCppBackend:
         self.last_forward_passes = 0
         self._choice_s: dict[int, float] = {}  # seconds of the latest answer, per answer size (fields)
         self._lock = threading.Lock()
+        if calibrate:
+            with self._lock:
+                self._timed_pass(16)
+                self._calibrate()
 
     @classmethod
     def from_settings(cls, settings: LlmBackendSettings, *, adapter_kind: str = "explain") -> LlamaCppBackend:
@@ -132,6 +141,38 @@ class LlamaCppBackend:
         view = copy.copy(self)
         view.clock, view.pass_cost, view._choice_s = clock, PassCost(), {}
         return view
+
+    def calibrate(self) -> float:
+        """Time one pass over ``PROBE_TOKENS`` tokens into the pass-cost estimate; its seconds."""
+        with self._lock:
+            return self._calibrate()
+
+    def _calibrate(self, n_tokens: int = PROBE_TOKENS) -> float:
+        seconds = self._timed_pass(n_tokens)
+        self.pass_cost.observe(n_tokens, seconds, self.clock(), replace=True)
+        return seconds
+
+    def _timed_pass(self, n_tokens: int) -> float:
+        """Seconds of one prompt pass over ``n_tokens`` arbitrary tokens (the context is cleared before and after)."""
+        ids = [100 + i % 1000 for i in range(n_tokens)]
+        self.llm.reset()
+        t0 = self.clock()
+        self.llm.eval(ids)
+        seconds = self.clock() - t0
+        self.llm.reset()
+        return seconds
+
+    def _first_pass_fits(self, n_tokens: int, now: float, deadline: float | None) -> bool:
+        """Whether the first pass is expected to end by ``deadline``; an estimate that refuses and is stale (older
+        than ``REFRESH_S``: measured on a busier machine) is re-measured first with a short pass (``MIN_TOKENS``,
+        the least a pass is costed at), when that pass fits."""
+        cost = self.pass_cost
+        if cost.fits(n_tokens, now, deadline):
+            return True
+        if cost.stale(now) and cost.fits(MIN_TOKENS, now, deadline):
+            self._calibrate(MIN_TOKENS)
+            return cost.fits(n_tokens, self.clock(), deadline)
+        return False
 
     def close(self) -> None:
         llm, self.llm = self.llm, None
@@ -172,11 +213,8 @@ class LlamaCppBackend:
             return None
         import json
 
-        from llama_cpp import LlamaGrammar
-
-        if grammar is not None:
-            return LlamaGrammar.from_string(grammar, verbose=False)
-        return LlamaGrammar.from_json_schema(json.dumps(json_schema), verbose=False)
+        return _compiled_grammar(grammar if grammar is not None else None,
+                                 None if grammar is not None else json.dumps(json_schema, sort_keys=False))  # fmt: skip
 
     def _one(self, conversation: Conversation, max_new_tokens: int, stop: Sequence[str], deadline: float | None,
              grammar) -> Generation:  # fmt: skip
@@ -188,8 +226,10 @@ class LlamaCppBackend:
         t0 = self.clock()
         prompt = self.scorer.tokenize(chatml(conversation))
         new = len(prompt) - min(_common_prefix(llm._input_ids.tolist(), prompt), len(prompt) - 1)
-        if deadline is not None and not self.pass_cost.fits(new, t0, deadline):
-            return Generation("", len(prompt), 0, 0.0, "timeout")
+        if deadline is not None and not self._first_pass_fits(new, t0, deadline):
+            return Generation("", len(prompt), 0, self.clock() - t0, "timeout")
+        if self.llm.n_tokens == 0:  # a calibration pass cleared the context: the prompt is read whole
+            new = len(prompt)
         tokens: list[int] = []
         text, reason, last, steps = "", "length", t0, []
         try:
@@ -219,3 +259,13 @@ class LlamaCppBackend:
             return Generation(text, len(prompt), len(tokens), self.clock() - t0, "error", f"{type(exc).__name__}: {exc}")
         self.last_forward_passes = len(tokens)
         return Generation(text, len(prompt), len(tokens), self.clock() - t0, reason)
+
+
+@functools.lru_cache(maxsize=16)
+def _compiled_grammar(gbnf: str | None, schema_json: str | None):
+    """A GBNF grammar, or a JSON schema's, compiled once (the planner's schema is the same for every question)."""
+    from llama_cpp import LlamaGrammar
+
+    if gbnf is not None:
+        return LlamaGrammar.from_string(gbnf, verbose=False)
+    return LlamaGrammar.from_json_schema(schema_json, verbose=False)

@@ -15,6 +15,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -109,6 +110,22 @@ def tie_to_parent(sig: int = signal.SIGTERM) -> bool:
     if os.getppid() != int(expected):  # the parent died between our fork and the prctl
         os.kill(os.getpid(), sig)
     return True
+
+
+def exit_if_stuck(grace_s: float, name: str, code: int = 1) -> threading.Timer:
+    """From the moment a process starts stopping: if the clean stop has not ended it within ``grace_s`` (a zenoh
+    close that waits on a peer that is dying too, on a machine whose cores are busy), end it anyway
+    (``os._exit``, said on stderr). A clean stop is preferred; a process left behind is not accepted."""
+
+    def _exit() -> None:
+        sys.stderr.write(f"{name}: the stop took longer than {grace_s:g} s; exiting now\n")
+        sys.stderr.flush()
+        os._exit(code)
+
+    timer = threading.Timer(grace_s, _exit)
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 def child_env(base: dict[str, str] | None = None, **overrides: str) -> dict[str, str]:

@@ -13,9 +13,11 @@ import sys
 import threading
 
 from lcmesh.mesh.bus import Bus, BusError
+from lcmesh.mesh.processes import exit_if_stuck
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.router")
+ROUTER_STOP_GRACE_S = 10.0
 
 
 def run_router(settings: MeshSettings | None = None) -> int:
@@ -41,6 +43,7 @@ def run_router(settings: MeshSettings | None = None) -> int:
     # handler (which only runs on the main thread) would then wait for the next signal
     while not stop.wait(0.5):
         pass
+    exit_if_stuck(ROUTER_STOP_GRACE_S, "router")  # the router keeps no state: a hung close ends it soon
     bus.close()
     log.info("router stopped")
     return 0

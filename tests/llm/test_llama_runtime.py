@@ -90,11 +90,16 @@ def test_decoding_under_the_grammar_always_yields_allowed_values(llama_base):
 
 
 def test_a_plan_decoded_under_the_json_schema_parses(llama_base):
-    from lcmesh.mesh.agents.ui.planner import plan_messages, plan_schema
+    from lcmesh.mesh.agents.ui.planner import PLANNER_TOOLS, plan_messages, plan_schema
 
-    gen = llama_base.chat([plan_messages("which cabinet is the hottest?")], max_new_tokens=48, json_schema=plan_schema())[0]
-    data = json.loads(gen.text)  # the base model, no planner adapter: the grammar alone makes it JSON of the shape
-    assert isinstance(data, list) and all(set(item) == {"tool", "args"} for item in data)
+    for question in ("which cabinet is the hottest?", "how much energy did the pumps use in the last 2 hours?"):
+        gen = llama_base.chat([plan_messages(question)], max_new_tokens=64, json_schema=plan_schema())[0]
+        data = json.loads(gen.text)  # the base model, no planner adapter: the grammar alone makes it JSON of the shape
+        assert isinstance(data, list) and all(set(item) == {"tool", "args"} for item in data), gen.text
+        for item in data:  # and each tool's own argument names, with values of their kind (no stray key, no 0th)
+            fields = PLANNER_TOOLS[item["tool"]].model_fields
+            assert set(item["args"]) <= set(fields), gen.text
+            assert all(v >= 1 for k, v in item["args"].items() if k in ("cabinet", "branch", "tower")), gen.text
 
 
 def test_chat_keeps_its_time_budget_on_a_test_clock(llama_base):
@@ -108,3 +113,30 @@ def test_chat_keeps_stop_strings_in_the_text(llama_base):
     gen = llama_base.chat([[{"role": "user", "content": "Reply with the JSON {\"a\": 1} and nothing else."}]],
                           max_new_tokens=24, stop=["}"])[0]  # fmt: skip
     assert gen.finish_reason == "stop" and gen.text.endswith("}")
+
+
+def test_a_stale_estimate_that_refuses_is_measured_again(llama_base):
+    """A pass-cost estimate from a cold or busy moment (here: 10 ms a token) refuses a 3 s call over a long prompt
+    while it is fresh; once older than REFRESH_S it is re-measured with a short pass that fits, and the call runs (the
+    clock is a test clock: only the estimate decides)."""
+    from lcmesh.llm.budget import REFRESH_S, PassCost
+
+    now = [1000.0]
+
+    def clock() -> float:
+        now[0] += 1e-4
+        return now[0]
+
+    view = llama_base.with_clock(clock)
+    view.pass_cost = PassCost(0.01, measured_at=now[0])
+    facts = " ".join(f"cabinet {i} supply {20 + i % 7}.5 C, dp {25 + i % 5} psi;" for i in range(60))
+    ask = [[{"role": "user", "content": f"{facts} Say hello."}]]  # about 900 tokens: 9 s at 10 ms a token
+    fresh = view.chat(ask, max_new_tokens=4, time_budget_s=3.0)[0]
+    assert fresh.finish_reason == "timeout" and fresh.new_tokens == 0
+    now[0] += REFRESH_S + 1
+    again = view.chat(ask, max_new_tokens=4, time_budget_s=3.0)[0]
+    assert again.new_tokens > 0 and view.pass_cost.seconds_per_token < 0.01, again
+
+
+def test_the_backend_measures_a_pass_when_it_loads(llama_base):
+    assert llama_base.pass_cost.measured_at is not None  # calibrated at load, not the prior

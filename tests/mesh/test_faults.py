@@ -51,7 +51,7 @@ class Mesh:
         # the speed factor comes as a command-line option: an audited change to the configuration
         self.demo = subprocess.Popen([lcmesh, "demo", "--speed-factor", str(SPEED)], env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)  # fmt: skip
-        self.bus = Bus.connect(s, "faults", role="ui", timeout_s=30)  # reads all; asks cmd/* as the UI may
+        self.bus = Bus.connect(s, "faults", role="ui", timeout_s=120)  # reads all; asks cmd/* as the UI may
         self.bus.watch_liveliness(keys.alive_all(s.site), self._on_token)
         self.bus.subscribe(keys.events(s.site), AgentEvent, lambda e: self._add(self.events, e))
         self.bus.subscribe(keys.applied(s.site), AppliedAction, lambda a: self._add(self.applied, a))

@@ -75,3 +75,15 @@ def test_a_port_held_by_another_program_is_named(tmp_path):
     said = " ".join((router.stdout + router.stderr).split())
     assert router.returncode == 3 and f"port {port} (the router) is held by pid" in said and \
         "not an lc-mesh process" in said, said  # fmt: skip
+
+
+def test_a_stop_that_hangs_still_ends_the_process():
+    """A process whose clean stop hangs (here: it sleeps forever after starting its stop) ends anyway, says why, and
+    exits with the code asked for: the watchdog the router and every agent arm when they start stopping."""
+    import sys
+
+    code = ("import time; from lcmesh.mesh.processes import exit_if_stuck; "
+            "exit_if_stuck(0.5, 'hung-agent', 7); time.sleep(3600)")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 7, done.stderr
+    assert "hung-agent: the stop took longer than 0.5 s; exiting now" in done.stderr

@@ -143,7 +143,7 @@ class HfBackend:
         t0 = self.clock()
         self._forward(PROBE_TOKENS)
         seconds = self.clock() - t0
-        self.pass_cost.observe(PROBE_TOKENS, seconds, self.clock())
+        self.pass_cost.observe(PROBE_TOKENS, seconds, self.clock(), replace=True)
         return seconds
 
     @torch.inference_mode()

@@ -11,10 +11,14 @@ import threading
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.registry import load_agent_class
 from lcmesh.mesh.bus import Bus, BusError
+from lcmesh.mesh.processes import exit_if_stuck
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.agents")
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_NO_ROUTER = 0, 1, 2, 3
+# a stop that has not ended the agent by then ends it anyway: above the orchestrator's stop of its agents (asked
+# at once, each given `stop_timeout_s`, default 5 s), below the 60 s a test or `lcmesh stop` waits
+AGENT_STOP_GRACE_S = 30.0
 GIL_SWITCH_INTERVAL_S = 0.0005  # a bus callback waits at most this for a busy thread to yield (default 5 ms)
 
 
@@ -51,6 +55,7 @@ def run_agent(role: str, settings: MeshSettings | None = None, agent_id: str | N
         while not stop.wait(0.2):
             if agent.failed.is_set():
                 break
+        exit_if_stuck(AGENT_STOP_GRACE_S, agent.agent_id, EXIT_FAILED)
         agent.stop()
     finally:
         bus.close()

@@ -211,12 +211,50 @@ def same_plan(a: list[ToolCall], b: list[ToolCall]) -> bool:
 
 
 def plan_schema() -> dict:
-    """The JSON schema a local plan is decoded under (llama.cpp's grammar): a list of at most ``MAX_CALLS``
-    ``{"tool": <a planner tool>, "args": {..}}`` objects. The arguments are any JSON object here, in the order the
-    model learned them, and validated by the tool's request model after decoding (``parse_plan``)."""
-    item = {"type": "object", "properties": {"tool": {"enum": sorted(PLANNER_TOOLS)}, "args": {"type": "object"}},
-            "required": ["tool", "args"], "additionalProperties": False}  # fmt: skip
-    return {"type": "array", "maxItems": MAX_CALLS, "items": item}
+    """The JSON schema a local plan is decoded under (llama.cpp's grammar): a list of at most ``MAX_CALLS`` calls,
+    each ``{"tool": <a planner tool>, "args": <that tool's arguments>}``. The arguments follow the tool's request
+    model (names, types, choices, no stray key), so an argument the model cannot take can not be written; every
+    one is optional here and in the order the model learned (the request model still checks what is required).
+    A number's range is left to the request model, but for small whole-number fields (cabinet, branch, tower,
+    limits) whose values are listed."""
+    if _PLAN_SCHEMA:
+        return _PLAN_SCHEMA[0]
+    items = []
+    for name in sorted(PLANNER_TOOLS):
+        full = PLANNER_TOOLS[name].model_json_schema()
+        args = _grammar_node(full, full.get("$defs", {}))
+        items.append({"type": "object", "properties": {"tool": {"const": name}, "args": args},
+                      "required": ["tool", "args"], "additionalProperties": False})  # fmt: skip
+    _PLAN_SCHEMA.append({"type": "array", "maxItems": MAX_CALLS, "items": {"anyOf": items}})
+    return _PLAN_SCHEMA[0]
+
+
+_PLAN_SCHEMA: list[dict] = []
+_LISTED_INTS = 99  # a bounded whole-number field lists at most this many values (1-99 for an entity number)
+
+
+def _grammar_node(node: dict, defs: dict) -> dict:
+    """A request model's JSON schema cut to what llama.cpp's schema grammar honours (see ``plan_schema``)."""
+    if "$ref" in node:
+        node = defs[node["$ref"].rsplit("/", 1)[-1]]
+    if "anyOf" in node:
+        alts = [_grammar_node(a, defs) for a in node["anyOf"] if a.get("type") != "null"]
+        return alts[0] if len(alts) == 1 else {"anyOf": alts}
+    if "enum" in node or "const" in node:
+        return {k: node[k] for k in ("enum", "const") if k in node}
+    kind = node.get("type")
+    if kind == "integer" and node.get("minimum", -1) >= 0 and "maximum" in node:
+        lo = int(node["minimum"])
+        return {"enum": list(range(lo, min(int(node["maximum"]), lo + _LISTED_INTS - 1) + 1))}
+    if kind == "array":
+        out = {"type": "array", "items": _grammar_node(node.get("items", {}), defs)}
+        return out | {k: node[k] for k in ("minItems", "maxItems") if k in node}
+    if kind == "object":
+        props = {k: _grammar_node(v, defs) for k, v in node.get("properties", {}).items()}
+        return {"type": "object", "properties": props, "additionalProperties": False}
+    if kind == "string":
+        return {"type": "string"} | {k: node[k] for k in ("maxLength",) if k in node}
+    return {"type": kind} if kind else {}
 
 
 def plan_messages(question: str) -> list[dict[str, str]]:
