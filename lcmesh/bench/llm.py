@@ -256,9 +256,10 @@ def _loop_controller(name: str, system, backend, cfg: BenchLlmConfig):
 
 
 def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
-    from lcmesh.bench.suite import TEST_DAYS, days_named, load_day, run_day
+    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, load_day, run_day
 
-    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()])
+    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()],
+                                                      TEST_DAYS + VALIDATION_DAYS)  # fmt: skip
     steps = max(int(round(cfg.hours * 240)), 1)
     rows: dict[str, dict] = {name: {"days": {}} for name in LOOP_CONTROLLERS}
     windows = {}
@@ -296,11 +297,12 @@ def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
 
 def _whole_days(cfg: BenchLlmConfig, system, control, say) -> dict:
     """Whole held-out days: the LLM (deciding every ``whole_day_period`` steps) beside its teacher, same guardrails."""
-    from lcmesh.bench.suite import TEST_DAYS, days_named, load_day, run_day
+    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, load_day, run_day
     from lcmesh.llm.controller import LlmController
     from lcmesh.twin.controllers import make_controller
 
-    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()])
+    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()],
+                                                      TEST_DAYS + VALIDATION_DAYS)  # fmt: skip
     rows: dict[str, dict] = {"ppo": {}, "llm": {}}
     stats = []
     for i, day in enumerate(days):

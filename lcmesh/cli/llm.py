@@ -63,7 +63,8 @@ def bench_llm(
     hours: Annotated[float, typer.Option(help="closed loop: the busiest hours of each held-out day", min=0.05,
                                          max=24.0)] = 1.0,
     period: Annotated[int, typer.Option(help="closed loop: the LLM decides every N steps", min=1)] = 8,
-    days: Annotated[str, typer.Option(help="closed loop: comma-separated suite test days (default: all)")] = "",
+    days: Annotated[str, typer.Option(help="closed loop: comma-separated suite test days (default: all), or validation "
+                                        "days to choose settings on (then no --markdown)")] = "",
     adapter: Annotated[str, typer.Option(help="the explainer's LoRA adapter folder, 'default' (packaged) or "
                                          "'none'")] = "default",
     sections: Annotated[str, typer.Option(help="what to run: fidelity, control, explain, loop (busiest hour per "
@@ -74,12 +75,15 @@ def bench_llm(
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
 
     if days:
-        from lcmesh.bench.suite import days_named
+        from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named
 
         try:
-            days_named([d.strip() for d in days.split(",") if d.strip()])
+            picked = days_named([d.strip() for d in days.split(",") if d.strip()], TEST_DAYS + VALIDATION_DAYS)
         except ValueError as exc:
             fail(f"`--days`: {exc}")
+        if markdown is not None and any(d in VALIDATION_DAYS for d in picked):
+            fail("`--days`: validation days are for choosing settings; their figures do not go into BENCHMARKS.md "
+                 "(leave out --markdown, keep --json)")
     known = {"fidelity", "control", "explain", "loop", "days"}
     unknown = sorted({x.strip() for x in sections.split(",") if x.strip()} - known)
     if unknown:

@@ -27,3 +27,12 @@ def test_bench_llm_help_lists_its_options():
     assert result.exit_code == 0
     for option in ("--json", "--markdown", "--quick", "--hours", "--period"):
         assert option in result.output
+
+
+def test_bench_llm_keeps_validation_days_out_of_benchmarks_md(tmp_path):
+    result = runner.invoke(app, ["bench", "llm", "--sections", "loop", "--days", "val-hot-1993",
+                                 "--markdown", str(tmp_path / "B.md")])  # fmt: skip
+    assert result.exit_code != 0 and "validation days are for choosing settings" in " ".join(result.output.split())
+    assert not (tmp_path / "B.md").exists()
+    result = runner.invoke(app, ["bench", "llm", "--sections", "loop", "--days", "val-hot-199"])
+    assert result.exit_code != 0 and "did you mean 'val-hot-1993'" in " ".join(result.output.split())
