@@ -98,7 +98,7 @@ def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = 
         result["control_latency"] = _control_latency(cfg, system, control)
     if "explain" in sections:
         say("explanations over the evaluation day")
-        result["explanations"] = _explanations(cfg, system, backend, say, settings)
+        result["explanations"] = _explanations(cfg, system, backend, say)
     if "loop" in sections:
         say("closed loop on the held-out days")
         result["closed_loop"] = _closed_loop(cfg, system, control, say)
@@ -152,12 +152,11 @@ def _eval_day_decisions(cfg: BenchLlmConfig, system, n: int):
     return found
 
 
-def _explanations(cfg: BenchLlmConfig, system, backend, say, settings=None) -> dict:
-    from lcmesh.llm.explainer import LlmExplainer, short_backend_for
+def _explanations(cfg: BenchLlmConfig, system, backend, say) -> dict:
+    from lcmesh.llm.explainer import LlmExplainer
 
     decisions = _eval_day_decisions(cfg, system, cfg.explain_per_level)
-    short = short_backend_for(settings) if settings is not None else None
-    explainer = LlmExplainer(system, backend, short_backend=short)  # as make_explainer builds it for the mesh
+    explainer = LlmExplainer(system, backend)
     result = {}
     for level in ("short", "detailed"):
         rows = []
@@ -170,7 +169,6 @@ def _explanations(cfg: BenchLlmConfig, system, backend, say, settings=None) -> d
             rendered, rendered_scores = _rendering(system, out, action, previous, wb, cabinet, level)
             final = r.llm_scores if r.source == "llm" else rendered_scores
             rows.append({"seconds": seconds, "llm_seconds": r.seconds, "source": r.source, "reason": r.fallback_reason,
-                         "llm_part": r.llm_part,
                          "new_tokens": r.new_tokens, "passes": passes, "llm": r.llm_scores, "final": final,
                          "as_rendered": r.source == "llm" and r.text.strip() == rendered.strip(),
                          "whatif_claims": r.whatif_claims, "text": r.text})  # fmt: skip
@@ -180,7 +178,6 @@ def _explanations(cfg: BenchLlmConfig, system, backend, say, settings=None) -> d
             "n": len(rows), "seconds_median": statistics.median(secs), "seconds_max": max(secs),
             "llm_seconds_median": statistics.median(row["llm_seconds"] for row in rows),
             "llm_used": sum(row["source"] == "llm" for row in rows),
-            "llm_part": sorted({row["llm_part"] for row in rows if row["llm_part"]}),
             "llm_text_as_rendered": sum(row["as_rendered"] for row in rows),
             "llm_with_whatif_claim": sum(bool(row["whatif_claims"]) for row in rows),
             "whatif_claims": {k: sum(k in row["whatif_claims"] for row in rows)

@@ -131,26 +131,6 @@ def explain_messages(facts: list[Fact], level: str) -> list[dict[str, str]]:
             {"role": "user", "content": Template(user).substitute(values)}]  # fmt: skip
 
 
-def make_explainer(system: SystemDescription, settings=None) -> LlmExplainer:
-    """The explainer as the mesh and the benchmark run it: the configured backend (``LlmBackendSettings``), and the
-    short level's (``short_backend_for``)."""
-    from lcmesh.llm.base import LlmBackendSettings, make_backend
-
-    settings = settings or LlmBackendSettings()
-    return LlmExplainer(system, make_backend(settings), short_backend=short_backend_for(settings))
-
-
-def short_backend_for(settings) -> LlmBackend | None:
-    """llama.cpp with the configured adapter, for the short level, when the configured runtime is another (the short
-    what-if needs an answer prefix) and llama.cpp is installed; else None (the configured backend serves it)."""
-    from lcmesh.llm.base import make_backend
-    from lcmesh.llm.llama_backend import llama_available
-
-    if settings.backend == "local" and settings.runtime != "llama.cpp" and llama_available():
-        return make_backend(settings, runtime="llama.cpp")
-    return None
-
-
 class LlmExplainer:
     """Explains cabinet decisions with an LLM backend; counts how often the renderer had to stand in."""
 
@@ -164,13 +144,10 @@ class LlmExplainer:
         whatif: bool = True,
         time_budget_s: dict[str, float] | None = None,
         clock: Clock | None = None,
-        short_backend: LlmBackend | None = None,
     ):
         """``clock`` times the explanations; by default the backend's, so one injected clock drives both.
-        ``whatif``: give the LLM the what-if facts too (the judge then grounds them). ``short_backend``: the backend
-        of the short level (``make_explainer`` gives it llama.cpp, which takes an answer prefix)."""
+        ``whatif``: give the LLM the what-if facts too (the judge then grounds them)."""
         self.system, self.backend, self.thresholds, self.use_draft = system, backend, thresholds, use_draft
-        self.short_backend = short_backend
         self.whatif = whatif
         self.clock = clock or getattr(backend, "clock", time.monotonic)
         self.time_budget_s = {**TIME_BUDGET_S, **(time_budget_s or {})}
@@ -191,22 +168,21 @@ class LlmExplainer:
             raise ValueError(f"`level` must be one of {', '.join(MAX_NEW_TOKENS)}, got {level!r}")
         facts = cabinet_decision_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet)
         rendered = render_explanation(facts, level)
-        backend = self.short_backend if level == "short" and self.short_backend is not None else self.backend
-        # a short text adds a WHAT IF section only where the backend takes the section's heading as the answer's start
-        prefixed = self.whatif and level not in WHATIF_LEVELS and getattr(backend, "answer_prefix_ok", False)
+        # a short text adds a WHAT IF section only where the backend reads the rendering as the answer's start
+        prefixed = self.whatif and level not in WHATIF_LEVELS and getattr(self.backend, "answer_prefix_ok", False)
         whatif = self.whatif and (level in WHATIF_LEVELS or prefixed)
         extra = decision_whatif_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet) if whatif else []
         t0 = self.clock()
         try:
             if prefixed:
                 prompt = [f for f in facts if f.name in SHORT_WHATIF_FACTS] + extra
-                gen = backend.chat([explain_messages(prompt, level)], max_new_tokens=SHORT_WHATIF_TOKENS,
+                gen = self.backend.chat([explain_messages(prompt, level)], max_new_tokens=SHORT_WHATIF_TOKENS,
                                         stop=("\n\n", "\n#"), answer_prefix=f"{WHATIF_HEADING}\n\n",
                                         time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
                 added = gen.text.split("\n#")[0].strip()
                 text = f"{rendered.rstrip()}\n\n{WHATIF_HEADING}\n\n{added}\n" if added else rendered
             else:
-                gen = backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
+                gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
                                         stop=() if whatif else (WHATIF_HEADING,),
                                         drafts=[rendered] if self.use_draft else None,
                                         time_budget_s=self.time_budget_s[level])[0]  # fmt: skip

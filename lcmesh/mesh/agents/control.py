@@ -281,10 +281,11 @@ class ControlAgent(Agent):
     def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation:
         """The local LLM's detailed explanation of the hottest cabinet's decision (the rendering when it fails); the
         detailed level, since only its budget leaves room for the what-if section (docs/llm.md)."""
-        from lcmesh.llm.explainer import make_explainer
+        from lcmesh.llm.base import make_backend
+        from lcmesh.llm.explainer import LlmExplainer
 
         if self._llm_explainer is None:
-            self._llm_explainer = make_explainer(self.system)
+            self._llm_explainer = LlmExplainer(self.system, make_backend())
         cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
         r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "detailed",
                                         record_id=decision_id)  # fmt: skip
