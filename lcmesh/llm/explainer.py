@@ -6,11 +6,9 @@ setpoint, the CDU pump at the new and the held dp and their difference in kW, th
 normal); the LLM writes the explanation from all of them (``lcmesh/prompts/controller_explain.md``:
 compact ``name = value`` lines), and the judge grounds its numbers against all of them. A text's
 *what-if claims* are the what-if facts it states, with their unit, that the rendering does not
-(``whatif_claims``); they count only in a text the judge passes. At the detailed levels
-(``WHATIF_LEVELS``) the LLM writes the whole text, what-if section included. A short text does not
-leave the time for that on 2 cores: on a backend that takes an answer prefix (llama.cpp) the LLM
-writes only the WHAT IF section, from a compact prompt, and it follows the rendering
-(``llm_part = "what-if"``); elsewhere the short text stops at the WHAT IF heading.
+(``whatif_claims``); they count only in a text the judge passes. The what-if facts go to the detailed
+levels only (``WHATIF_LEVELS``): a short text stops at the WHAT IF heading, since decoding that
+section does not fit the short budget on 2 cores.
 ``lcmesh explain-eval``'s scorer checks the text; an explanation below the thresholds (numeric
 grounding 0.98, coverage 1, direction consistency 0.95) or with missing sections is replaced by the
 deterministic rendering, and the reason is counted. The distilled model was trained to write the
@@ -48,11 +46,9 @@ MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
 WHATIF_LEVELS = ("detailed", "very_detailed")
 WHATIF_HEADING = "## WHAT IF"
 TIME_BUDGET_S = {"short": 2.85, "detailed": 9.7, "very_detailed": 20.0}  # the LLM's share; then the renderer
-# A short text on a backend that takes an answer prefix (llama.cpp): the LLM writes only its WHAT IF section (a
-# sentence or three), from a compact prompt (the decision's setpoints and the what-if facts, about 240 tokens: a
-# prompt pass over all ~60 facts takes 3-4 s on one busy core, the whole short budget), after the rendering
+# A short text on a backend that takes an answer prefix (llama.cpp): the rendering is the answer's start, read in the
+# prompt's pass, and the LLM writes only its WHAT IF section (a sentence or three: about 1 s on one core)
 SHORT_WHATIF_TOKENS = 80
-SHORT_WHATIF_FACTS = ("cabinet", "supply_setpoint", "supply_setpoint_change", "dp_setpoint", "dp_setpoint_change")
 LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
 
 
@@ -175,12 +171,12 @@ class LlmExplainer:
         t0 = self.clock()
         try:
             if prefixed:
-                prompt = [f for f in facts if f.name in SHORT_WHATIF_FACTS] + extra
-                gen = self.backend.chat([explain_messages(prompt, level)], max_new_tokens=SHORT_WHATIF_TOKENS,
-                                        stop=("\n\n", "\n#"), answer_prefix=f"{WHATIF_HEADING}\n\n",
+                prefix = rendered.rstrip() + f"\n\n{WHATIF_HEADING}\n\n"
+                gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=SHORT_WHATIF_TOKENS,
+                                        stop=("\n\n", "\n#"), answer_prefix=prefix,
                                         time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
                 added = gen.text.split("\n#")[0].strip()
-                text = f"{rendered.rstrip()}\n\n{WHATIF_HEADING}\n\n{added}\n" if added else rendered
+                text = prefix + added + "\n" if added else rendered
             else:
                 gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
                                         stop=() if whatif else (WHATIF_HEADING,),
