@@ -46,9 +46,6 @@ MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
 WHATIF_LEVELS = ("detailed", "very_detailed")
 WHATIF_HEADING = "## WHAT IF"
 TIME_BUDGET_S = {"short": 2.85, "detailed": 9.7, "very_detailed": 20.0}  # the LLM's share; then the renderer
-# A short text on a backend that takes an answer prefix (llama.cpp): the rendering is the answer's start, read in the
-# prompt's pass, and the LLM writes only its WHAT IF section (a sentence or three: about 1 s on one core)
-SHORT_WHATIF_TOKENS = 80
 LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
 
 
@@ -76,7 +73,6 @@ class ExplanationResult:
     whatif_claims: list[str] = field(default_factory=list)  # what-if facts the LLM's text states and the rendering lacks
     identical_to_rendering: bool = False
     facts: list[Fact] = field(default_factory=list)  # what the LLM was given and the judge grounded the text against
-    llm_part: str = ""  # "whole": the LLM wrote the text; "what-if": the rendering, then the LLM's WHAT IF section
 
 
 # What a what-if fact's unit reads as in the judge's number interpretations: (quantity, value -> canonical SI)
@@ -164,28 +160,16 @@ class LlmExplainer:
             raise ValueError(f"`level` must be one of {', '.join(MAX_NEW_TOKENS)}, got {level!r}")
         facts = cabinet_decision_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet)
         rendered = render_explanation(facts, level)
-        # a short text adds a WHAT IF section only where the backend reads the rendering as the answer's start
-        prefixed = self.whatif and level not in WHATIF_LEVELS and getattr(self.backend, "answer_prefix_ok", False)
-        whatif = self.whatif and (level in WHATIF_LEVELS or prefixed)
+        whatif = self.whatif and level in WHATIF_LEVELS
         extra = decision_whatif_facts(self.system, out, action, previous_action, wet_bulb_k, cabinet) if whatif else []
         t0 = self.clock()
         try:
-            if prefixed:
-                prefix = rendered.rstrip() + f"\n\n{WHATIF_HEADING}\n\n"
-                gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=SHORT_WHATIF_TOKENS,
-                                        stop=("\n\n", "\n#"), answer_prefix=prefix,
-                                        time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
-                added = gen.text.split("\n#")[0].strip()
-                text = prefix + added + "\n" if added else rendered
-            else:
-                gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
-                                        stop=() if whatif else (WHATIF_HEADING,),
-                                        drafts=[rendered] if self.use_draft else None,
-                                        time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
-                text = gen.text.removesuffix(WHATIF_HEADING).strip() + "\n"
-            n_new, error = gen.new_tokens, gen.failure
-            if prefixed and error is None and text is rendered:
-                error = "empty"
+            gen = self.backend.chat([explain_messages(facts + extra, level)], max_new_tokens=MAX_NEW_TOKENS[level],
+                                    stop=() if whatif else (WHATIF_HEADING,),
+                                    drafts=[rendered] if self.use_draft else None,
+                                    time_budget_s=self.time_budget_s[level])[0]  # fmt: skip
+            text, n_new = gen.text.removesuffix(WHATIF_HEADING).strip() + "\n", gen.new_tokens
+            error = gen.failure
         except Exception as exc:  # a failing backend degrades to the renderer, it never stops the agent
             text, error, n_new = "", f"{type(exc).__name__}: {exc}", 0
         seconds = self.clock() - t0
@@ -194,7 +178,7 @@ class LlmExplainer:
         item = evaluate_record(record)
         scores = {k: float(item[k]) for k in ("numeric_grounding", "coverage", "direction_consistency")}
         if error:
-            reason = error if error in ("timeout", "empty") else "backend"
+            reason = "timeout" if error == "timeout" else "backend"
         else:
             reason = self._failed_check(scores, item["flags"])
             if reason is None and unverified_whatif_numbers(text, facts + extra):
@@ -207,7 +191,7 @@ class LlmExplainer:
             self.stats["llm_with_whatif_claim"] += bool(claims)
             self.stats["llm_identical_to_rendering"] += same
             return ExplanationResult(text, "llm", level, scores, seconds, n_new, None, item["flags"], claims, same,
-                                     facts + extra, "what-if" if prefixed else "whole")  # fmt: skip
+                                     facts + extra)  # fmt: skip
         self.stats["renderer"] += 1
         self.stats[f"fallback_{reason}"] += 1
         return ExplanationResult(rendered, "renderer", level, scores, seconds, n_new, reason, item["flags"],

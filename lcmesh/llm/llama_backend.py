@@ -198,20 +198,15 @@ class LlamaCppBackend:
     # --- chat -------------------------------------------------------------------------------------------------
     def chat(self, conversations: Sequence[Conversation], *, max_new_tokens: int, stop: Sequence[str] = (),
              drafts: Sequence[str | None] | None = None, time_budget_s: float | None = None,
-             grammar: str | None = None, json_schema: dict | None = None,
-             answer_prefix: str = "") -> list[Generation]:  # fmt: skip
+             grammar: str | None = None, json_schema: dict | None = None) -> list[Generation]:  # fmt: skip
         """Greedy completions, one conversation after another (llama.cpp reuses the shared prefix's cache).
 
         ``grammar`` (GBNF) or ``json_schema`` constrain the text; ``drafts`` is accepted and ignored.
-        ``answer_prefix``: the answer starts with this text, read in the prompt's pass (not decoded); the returned
-        text is what the model wrote after it.
         """
         deadline = None if time_budget_s is None else self.clock() + time_budget_s
         constraint = self._grammar(grammar, json_schema)
         with self._lock:
-            return [self._one(c, max_new_tokens, stop, deadline, constraint, answer_prefix) for c in conversations]
-
-    answer_prefix_ok = True  # chat() takes an ``answer_prefix``
+            return [self._one(c, max_new_tokens, stop, deadline, constraint) for c in conversations]
 
     def _grammar(self, grammar: str | None, json_schema: dict | None):
         if grammar is None and json_schema is None:
@@ -222,14 +217,14 @@ class LlamaCppBackend:
                                  None if grammar is not None else json.dumps(json_schema, sort_keys=False))  # fmt: skip
 
     def _one(self, conversation: Conversation, max_new_tokens: int, stop: Sequence[str], deadline: float | None,
-             grammar, answer_prefix: str = "") -> Generation:  # fmt: skip
+             grammar) -> Generation:  # fmt: skip
         """Greedy tokens (under ``grammar``) until end of turn, a stop string (kept in the text), the token budget or
         the deadline: a next token expected to end after it is not started."""
         from llama_cpp import llama_cpp
 
         llm = self.llm
         t0 = self.clock()
-        prompt = self.scorer.tokenize(chatml(conversation) + answer_prefix)
+        prompt = self.scorer.tokenize(chatml(conversation))
         new = len(prompt) - min(_common_prefix(llm._input_ids.tolist(), prompt), len(prompt) - 1)
         if deadline is not None and not self._first_pass_fits(new, t0, deadline):
             return Generation("", len(prompt), 0, self.clock() - t0, "timeout")

@@ -167,34 +167,6 @@ def test_a_short_text_gets_no_whatif_facts_and_stops_at_the_whatif_heading(decis
     assert r.source == "llm" and r.identical_to_rendering and "WHAT IF" not in r.text
 
 
-class PrefixEcho(EchoBackend):
-    """A backend that reads an answer prefix (as llama.cpp does) and writes a fixed continuation after it."""
-
-    answer_prefix_ok = True
-
-    def chat(self, conversations, *, max_new_tokens, stop=(), drafts=None, time_budget_s=None, answer_prefix=""):
-        self.calls.append((conversations, answer_prefix, stop))
-        return [Generation(self.text, 100, 20, 0.01, "stop")]
-
-
-def test_a_short_text_on_a_prefix_backend_is_the_rendering_then_the_llms_whatif(decision, lcopt5):
-    out, action, previous = decision
-    facts, extra = _whatif(decision, lcopt5)
-    expected = next(f for f in extra if f.name == "hottest_branch_expected")
-    backend = PrefixEcho(f"At the new supply setpoint the hottest branch should settle near {expected.display}.")
-    r = LlmExplainer(lcopt5, backend).explain(out, action, previous, 291.15, 1, "short")
-    conversations, prefix, _ = backend.calls[0]
-    rendered = render_explanation(facts, "short")
-    assert prefix == rendered.rstrip() + "\n\n## WHAT IF\n\n" and "hottest_branch_expected = " in conversations[0][1]["content"]
-    assert r.source == "llm" and r.llm_part == "what-if" and r.text.startswith(rendered.rstrip())
-    assert "hottest_branch_expected" in r.whatif_claims and not r.identical_to_rendering
-    empty = LlmExplainer(lcopt5, PrefixEcho("")).explain(out, action, previous, 291.15, 1, "short")
-    assert empty.source == "renderer" and empty.fallback_reason == "empty" and empty.text == rendered
-    wrong = PrefixEcho(f"The hottest branch should settle near {float(expected.value) + 6.1:.1f} °C.")
-    r = LlmExplainer(lcopt5, wrong).explain(out, action, previous, 291.15, 1, "short")
-    assert r.source == "renderer" and r.fallback_reason in ("whatif_unverified", "numeric_grounding")
-
-
 def test_a_wrong_whatif_number_is_caught_by_the_judge(decision, lcopt5):
     out, action, previous = decision
     facts, extra = _whatif(decision, lcopt5)
