@@ -150,6 +150,8 @@ class Explanation(Message):
     facts: list[FactModel] = []
     written_by: Literal["renderer", "llm"] = Field("renderer", description="who wrote the text: the toolbox's "
                                                    "renderer, or the LLM (its text passed the judge)")
+    why_renderer: str = Field("", max_length=200, description="with the LLM explaining: why the rendering was "
+                              "published (the judge's reason, a timeout, or no verified claim the rendering lacks)")
 
 
 # --- maintenance, monitor, events ---------------------------------------------------------------

@@ -279,7 +279,8 @@ class ControlAgent(Agent):
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
     def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation:
-        """The local LLM's detailed explanation of the hottest cabinet's decision (the rendering when it fails); the
+        """The local LLM's detailed explanation of the hottest cabinet's decision where it adds a verified what-if claim
+        the rendering lacks; the rendering where it fails the judge or adds none (said in ``why_renderer``). The
         detailed level, since only its budget leaves room for the what-if section (docs/llm.md)."""
         from lcmesh.llm.base import make_backend
         from lcmesh.llm.explainer import LlmExplainer
@@ -289,9 +290,13 @@ class ControlAgent(Agent):
         cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
         r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "detailed",
                                         record_id=decision_id)  # fmt: skip
-        self.tally["llm_texts" if r.source == "llm" else "llm_fallbacks"] += 1
+        text, why = r.text, r.fallback_reason or ""
+        if r.source == "llm" and not r.whatif_claims:  # it passed the judge, but says nothing the rendering lacks
+            text, why = render_explanation(r.facts, "detailed"), "no verified claim the rendering lacks"
+        by_llm = r.source == "llm" and not why
+        self.tally["llm_texts" if by_llm else "llm_fallbacks"] += 1
         return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
-                           level="detailed", text=r.text, written_by="llm" if r.source == "llm" else "renderer",
+                           level="detailed", text=text, written_by="llm" if by_llm else "renderer", why_renderer=why,
                            facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:

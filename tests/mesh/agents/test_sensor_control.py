@@ -255,6 +255,11 @@ def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_a
     assert "## EXECUTIVE SUMMARY" in explained[0]["text"]  # the LLM's text passed the judge, or the rendering did
     stats = control._llm_explainer.stats
     assert stats["explanations"] == stats["llm"] + stats["renderer"] >= 1
+    # published as the LLM's only where it adds a verified what-if claim; else the rendering, said why
+    published = control.tally["llm_texts"]  # read before the stats: one explanation may finish in between
+    assert published <= stats["llm_with_whatif_claim"] <= published + 1, (control.tally, stats)
+    if published == 0:
+        assert all("## WHAT IF" not in e["text"] for e in history.explanations(limit=50))
 
 
 def test_the_llm_controller_runs_paced_in_the_mesh_and_says_who_decided(start_agent, mesh_settings):

@@ -187,7 +187,9 @@ function renderAgents(rows) {
 
 const explanations = new Map();
 const writtenBy = new Map();  // decision id -> "llm" | "renderer": who wrote the explanation's text
+const whyRenderer = new Map();  // decision id -> why the rendering stood in for the LLM's text
 const explainLabel = (id) => (writtenBy.get(id) === "llm" ? "explanation (written by the LLM, checked)"
+  : whyRenderer.get(id) ? `explanation (rendered from the facts: ${whyRenderer.get(id)})`
   : writtenBy.has(id) ? "explanation (rendered from the facts)" : "explanation");
 
 // A decision that moved nothing the page shows (`changes` is [], not null: null means no decision before it known)
@@ -242,10 +244,12 @@ function addDecision(d) {
 function addExplanation(x) {
   explanations.set(x.decision_id, x.text);
   if (x.written_by) writtenBy.set(x.decision_id, x.written_by);
+  if (x.why_renderer) whyRenderer.set(x.decision_id, x.why_renderer);
   if (explanations.size > 200) {
     const oldest = explanations.keys().next().value;
     explanations.delete(oldest);
     writtenBy.delete(oldest);
+    whyRenderer.delete(oldest);
   }
   const li = document.querySelector(`#decisions li[data-decision="${CSS.escape(x.decision_id)}"]`);
   if (li && !li.querySelector("details")) {
