@@ -365,6 +365,10 @@ def render_llm(r: dict) -> str:
         f"{load['gguf_s']:.1f} vs {load['safetensors_cache_s']:.2f} vs {f(load.get('control_load_s'))} | |",
     ]
     ex = r.get("explanations")
+    if r.get("explain_run"):  # the explanation rows were measured in a run of their own (`--sections explain`)
+        run = r["explain_run"]
+        lines[2] += (f" The explanation rows: `lcmesh bench llm --sections explain` at commit {run['commit']}, "
+                     f"{run['date']} (load average {run['load_avg_1m_at_start']:.1f} at start).")
     if ex:
         lines += [f"| {lvl} explanation, whole pipeline, s (median / max of {ex[lvl]['n']}; LLM text used in "
                   f"{ex[lvl]['llm_used']}{_draft_note(ex[lvl])}) | {ex[lvl]['seconds_median']:.1f} / "
