@@ -213,8 +213,7 @@ class LlamaCppBackend:
             return None
         import json
 
-        return _compiled_grammar(grammar if grammar is not None else None,
-                                 None if grammar is not None else json.dumps(json_schema, sort_keys=False))  # fmt: skip
+        return _compiled_grammar(grammar, None if grammar is not None else json.dumps(json_schema))
 
     def _one(self, conversation: Conversation, max_new_tokens: int, stop: Sequence[str], deadline: float | None,
              grammar) -> Generation:  # fmt: skip
