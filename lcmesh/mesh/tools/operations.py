@@ -306,7 +306,7 @@ def _course(plant: Any, name: str, steps: int, start: Any) -> Course:
 
 def whatif_controller(req: WhatIfControllerRequest, ctx: Any) -> WhatIfControllerResponse:
     """Both controllers from the same saved state, same load and weather held; the plant restored afterwards."""
-    from lcmesh.mesh.tools.whatif import MAX_WHATIF_STEPS, _restored
+    from lcmesh.mesh.tools.whatif import MAX_WHATIF_STEPS, RestoredPlant
 
     plant = getattr(ctx, "plant", None)
     if plant is None:
@@ -320,7 +320,7 @@ def whatif_controller(req: WhatIfControllerRequest, ctx: Any) -> WhatIfControlle
         raise ToolInputError("the controller running now is not known; give `current`")
     steps = int(min(MAX_WHATIF_STEPS, max(1, round(req.minutes * 60.0 / plant.step_s))))
     with ctx.lock if getattr(ctx, "lock", None) is not None else contextlib.nullcontext():
-        with _restored(plant) as start:
+        with RestoredPlant(plant) as start:
             now = _course(plant, current, steps, start)
             other = _course(plant, req.controller, steps, start)
     return WhatIfControllerResponse(minutes=steps * plant.step_s / 60.0, current=now, alternative=other,

@@ -104,7 +104,7 @@ def one_step_whatif(
         raise ValueError(f"`wet_bulb_k` must be finite, got {wet_bulb_k}")
 
     results = {}
-    with _restored(plant) as start:
+    with RestoredPlant(plant) as start:
         for label, action in (("baseline", base), ("predicted", candidate)):
             plant.restore_state(start)
             for _ in range(steps):
@@ -125,8 +125,9 @@ def _action_dict(action: PlantAction) -> dict[str, np.ndarray]:
     return dict(zip(ACTION_FIELDS, (np.array(a, dtype=float) for a in action.astuple())))
 
 
-class _restored:
-    """Saves the FMU state (its inputs with it) and the step count; puts both back on exit."""
+class RestoredPlant:
+    """Saves the FMU state (its inputs with it) and the step count; puts both back on exit (every tool that runs the
+    live twin ahead: the what-ifs here and `whatif_controller`)."""
 
     def __init__(self, plant: Plant):
         self.plant = plant
