@@ -309,8 +309,8 @@ def run_live_planner(n_questions: int = 40, *, controller: str | None = None, sp
 def render_live_planner(r: dict) -> str:
     m = r["machine"]
     return "\n".join([
-        "## Chat planner in the running demo (`lcmesh bench chat --live 40 --json runs/bench/chat-live.json "
-        "--markdown BENCHMARKS.md`)", "",
+        f"## Chat planner in the running demo (`lcmesh bench chat --live {r['questions']} --json "
+        "runs/bench/chat-live.json --markdown BENCHMARKS.md`)", "",
         f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}. The demo mesh as "
         f"`lcmesh demo` starts it (lcopt-5 at {r['speed_factor']:g}x, controller {r['controller']}; the defaults are "
         f"{r['defaults']['speed_factor']:g}x and {r['defaults']['controller']}), real processes on loopback; "
