@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 
+import functools
 import json
 import logging
 import threading
@@ -210,6 +211,7 @@ def same_plan(a: list[ToolCall], b: list[ToolCall]) -> bool:
         return False
 
 
+@functools.cache
 def plan_schema() -> dict:
     """The JSON schema a local plan is decoded under (llama.cpp's grammar): a list of at most ``MAX_CALLS`` calls,
     each ``{"tool": <a planner tool>, "args": <that tool's arguments>}``. The arguments follow the tool's request
@@ -217,20 +219,16 @@ def plan_schema() -> dict:
     one is optional here and in the order the model learned (the request model still checks what is required).
     A number's range is left to the request model, but for small whole-number fields (cabinet, branch, tower,
     limits) whose values are listed."""
-    if _PLAN_SCHEMA:
-        return _PLAN_SCHEMA[0]
     items = []
     for name in sorted(PLANNER_TOOLS):
         full = PLANNER_TOOLS[name].model_json_schema()
         args = _grammar_node(full, full.get("$defs", {}))
         items.append({"type": "object", "properties": {"tool": {"const": name}, "args": args},
                       "required": ["tool", "args"], "additionalProperties": False})  # fmt: skip
-    _PLAN_SCHEMA.append({"type": "array", "maxItems": MAX_CALLS, "items": {"anyOf": items}})
-    return _PLAN_SCHEMA[0]
+    return {"type": "array", "maxItems": MAX_CALLS, "items": {"anyOf": items}}
 
 
-_PLAN_SCHEMA: list[dict] = []
-_LISTED_INTS = 99  # a bounded whole-number field lists at most this many values (1-99 for an entity number)
+_LISTED_INTS = 100  # a bounded whole-number field lists at most this many values (1-100 for an entity number)
 
 
 def _grammar_node(node: dict, defs: dict) -> dict:
