@@ -128,6 +128,21 @@ def exit_if_stuck(grace_s: float, name: str, code: int = 1) -> threading.Timer:
     return timer
 
 
+def stop_on_signals(grace_s: float, name: str, code: int = 1) -> threading.Event:
+    """An event set by SIGTERM or SIGINT; the first of them also arms ``exit_if_stuck``, so a process told to stop
+    while it still connects or starts (which do not look at the event) ends within ``grace_s`` too."""
+    stop = threading.Event()
+
+    def _handler(*_) -> None:
+        if not stop.is_set():
+            exit_if_stuck(grace_s, name, code)
+        stop.set()
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, _handler)
+    return stop
+
+
 def child_env(base: dict[str, str] | None = None, **overrides: str) -> dict[str, str]:
     """The current environment (or `base`) with ``LCMESH_*`` overrides; unbuffered Python output."""
     env = dict(os.environ if base is None else base)

@@ -8,12 +8,10 @@ Run as ``python -m lcmesh.mesh.router`` or ``lcmesh router``.
 from __future__ import annotations
 
 import logging
-import signal
 import sys
-import threading
 
 from lcmesh.mesh.bus import Bus, BusError
-from lcmesh.mesh.processes import exit_if_stuck
+from lcmesh.mesh.processes import stop_on_signals
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.router")
@@ -25,9 +23,7 @@ def run_router(settings: MeshSettings | None = None) -> int:
     settings = settings or MeshSettings()
     logging.basicConfig(level=getattr(logging, settings.log_level.upper(), logging.INFO),
                         format="%(asctime)s router %(levelname)s %(name)s: %(message)s")  # fmt: skip
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals(ROUTER_STOP_GRACE_S, "router")  # the router keeps no state: a hung stop ends it soon
     held = [m for m in map(_held, settings.listen_endpoints) if m]
     if held:  # zenoh's own error says only "Address already in use"; name the holder and how to stop it
         log.error("the router can not listen: %s", "; ".join(held))
@@ -43,7 +39,6 @@ def run_router(settings: MeshSettings | None = None) -> int:
     # handler (which only runs on the main thread) would then wait for the next signal
     while not stop.wait(0.5):
         pass
-    exit_if_stuck(ROUTER_STOP_GRACE_S, "router")  # the router keeps no state: a hung close ends it soon
     bus.close()
     log.info("router stopped")
     return 0

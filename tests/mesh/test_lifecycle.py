@@ -87,3 +87,9 @@ def test_a_stop_that_hangs_still_ends_the_process():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 7, done.stderr
     assert "hung-agent: the stop took longer than 0.5 s; exiting now" in done.stderr
+    # told to stop while it still starts (a connect, a slow start-up), which never looks at the stop event
+    code = ("import os, signal, time; from lcmesh.mesh.processes import stop_on_signals; "
+            "stop = stop_on_signals(0.5, 'starting-agent', 7); os.kill(os.getpid(), signal.SIGTERM); time.sleep(3600)")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 7, done.stderr
+    assert "starting-agent: the stop took longer than 0.5 s; exiting now" in done.stderr

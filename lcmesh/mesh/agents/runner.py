@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import gc
 import logging
-import signal
 import sys
-import threading
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.registry import load_agent_class
 from lcmesh.mesh.bus import Bus, BusError
-from lcmesh.mesh.processes import exit_if_stuck
+from lcmesh.mesh.processes import exit_if_stuck, stop_on_signals
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.agents")
@@ -35,9 +33,7 @@ def run_agent(role: str, settings: MeshSettings | None = None, agent_id: str | N
     agent = load_agent_class(role)(settings, agent_id)
     setup_logging(settings, agent.agent_id)
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals(AGENT_STOP_GRACE_S, agent.agent_id, EXIT_FAILED)
     try:
         bus = Bus.connect(settings, agent.agent_id, role=agent.role)
     except BusError as exc:
@@ -55,7 +51,8 @@ def run_agent(role: str, settings: MeshSettings | None = None, agent_id: str | N
         while not stop.wait(0.2):
             if agent.failed.is_set():
                 break
-        exit_if_stuck(AGENT_STOP_GRACE_S, agent.agent_id, EXIT_FAILED)
+        if not stop.is_set():  # a failed agent stops on its own: the same limit
+            exit_if_stuck(AGENT_STOP_GRACE_S, agent.agent_id, EXIT_FAILED)
         agent.stop()
     finally:
         bus.close()
