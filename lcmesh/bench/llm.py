@@ -487,4 +487,8 @@ def _render_whole_days(wd: dict) -> list[str]:
         lines.append(f"| {name} | {wd['mean_d_blade'][name]:.2f} | "
                      + " | ".join(f"{days[d]['d_blade_pct']:.2f}" for d in labels) + " |")  # fmt: skip
     lines += ["", f"Gap to the teacher: {wd['gap_points']:+.2f} points (target: within 1). " + _llm_line(wd["llm_stats"])]
+    if wd.get("run"):  # measured in a run of their own (`--sections days`)
+        run = wd["run"]
+        lines.append(f"Measured by `lcmesh bench llm --sections days --days {','.join(labels)} --whole-day-period "
+                     f"{wd['period_steps']}` at commit {run['commit']}, {run['date']}.")
     return lines
