@@ -77,7 +77,7 @@ class LlmControlDistillConfig:
     dagger_samples: int = 1200
     dagger_tower_samples: int = 600
     dagger_cache: str = ""
-    """Keep the student's rollouts in this .npz (reused when it exists and matches the seeds)."""
+    """Keep the student's rollouts in this .npz (reused when it holds the same seeds, hours, period and student)."""
     seed: int = 0
     threads: int = 0
     out: str = ""
@@ -119,12 +119,13 @@ def student_rollouts(cfg: LlmControlDistillConfig, system, say: Progress) -> Exp
         return None
     specs = _trace_specs(cfg, cfg.dagger_seeds, cfg.dagger_scenario, "dagger_seeds")
     cache = Path(cfg.dagger_cache) if cfg.dagger_cache else None
+    backend = make_control_backend(cfg.init_adapter or "default", threads=cfg.threads or 2)
     if cache is not None and cache.is_file():
         exp = Experience.load(cache)
-        if exp.traces == specs and exp.meta.get("hours") == cfg.dagger_hours:
+        same = (exp.traces, exp.meta.get("hours"), exp.meta.get("period"), exp.meta.get("student"))
+        if same == (specs, cfg.dagger_hours, cfg.dagger_period, backend.model_id):
             say(f"student rollouts from {cache}", 1, 1)
             return exp
-    backend = make_control_backend(cfg.init_adapter or "default", threads=cfg.threads or 2)
     student = LlmController(system, backend=backend, period_steps=cfg.dagger_period)
     total = len(specs) * (round(cfg.dagger_hours * 240) + 120)
     exp = collect_experience(student, system, specs, window_hours=cfg.dagger_hours,
