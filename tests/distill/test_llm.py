@@ -150,3 +150,31 @@ def test_step_log_appends_each_step_and_reports_it(tmp_path):
     rows = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
     assert [(r["step"], r["of"], r["loss"]) for r in rows] == [(1, 2, 0.5), (2, 2, 0.25)]
     assert said[-1] == ("QLoRA (nf4) loss 0.250", 2, 2)
+
+
+def test_a_windowed_rollout_is_the_busiest_hours_after_the_warm_up(lcopt5):
+    """DAgger's rollouts (`lcmesh distill llm-control --dagger-seeds`): the trace's busiest window, after the
+    benchmark's 30-min warm-up by the same controller, as the closed-loop benchmark picks it."""
+    from lcmesh.bench.llm import WARMUP_STEPS, busiest_window
+    from lcmesh.twin.traces import load_trace
+
+    spec = "synthetic:36@design-day"
+    exp = collect_experience(make_controller("g36", lcopt5), lcopt5, [spec], window_hours=0.1)
+    assert exp.n_steps == WARMUP_STEPS + 24  # 0.1 h of 15 s steps
+    trace = load_trace("synthetic:36", lcopt5, scenario="design-day")
+    start = busiest_window(trace, 24)
+    assert np.allclose(exp.wet_bulb_k, trace.wet_bulb_k[start - WARMUP_STEPS : start + 24])
+    with pytest.raises(ValueError, match="window_hours"):
+        collect_experience(make_controller("g36", lcopt5), lcopt5, [spec], window_hours=0)
+
+
+def test_dagger_seeds_must_be_training_seeds():
+    from lcmesh.distill.llm_control import LlmControlDistillConfig, _trace_specs
+
+    cfg = LlmControlDistillConfig(dagger_seeds="36,1011")
+    with pytest.raises(ValueError, match="`dagger_seeds` must be training seeds.*1011"):
+        _trace_specs(cfg, cfg.dagger_seeds, cfg.dagger_scenario, "dagger_seeds")
+    assert _trace_specs(cfg, "36,31", "design-day", "dagger_seeds") == ["synthetic:36@design-day",
+                                                                         "synthetic:31@design-day"]  # fmt: skip
+    with pytest.raises(ValueError, match="dagger_hours"):
+        LlmControlDistillConfig(dagger_hours=0)
