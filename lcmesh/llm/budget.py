@@ -62,3 +62,14 @@ class PassCost:
     def fits(self, n_tokens: int, now: float, deadline: float | None) -> bool:
         """Whether a pass over ``n_tokens`` starting ``now`` is expected to end by ``deadline``."""
         return deadline is None or now + self.expect(n_tokens) <= deadline
+
+    def fits_or_remeasured(self, n_tokens: int, clock: Clock, deadline: float | None,
+                           measure: Callable[[int], object], probe_tokens: int = PROBE_TOKENS) -> bool:  # fmt: skip
+        """``fits``; an estimate that refuses and is stale is first re-measured by ``measure(probe_tokens)`` (which
+        times a pass and calls ``observe``), when that probe pass itself fits."""
+        if self.fits(n_tokens, clock(), deadline):
+            return True
+        if self.stale(clock()) and self.fits(probe_tokens, clock(), deadline):
+            measure(probe_tokens)
+            return self.fits(n_tokens, clock(), deadline)
+        return False

@@ -162,18 +162,6 @@ class LlamaCppBackend:
         self.llm.reset()
         return seconds
 
-    def _first_pass_fits(self, n_tokens: int, now: float, deadline: float | None) -> bool:
-        """Whether the first pass is expected to end by ``deadline``; an estimate that refuses and is stale (older
-        than ``REFRESH_S``: measured on a busier machine) is re-measured first with a short pass (``MIN_TOKENS``,
-        the least a pass is costed at), when that pass fits."""
-        cost = self.pass_cost
-        if cost.fits(n_tokens, now, deadline):
-            return True
-        if cost.stale(now) and cost.fits(MIN_TOKENS, now, deadline):
-            self._calibrate(MIN_TOKENS)
-            return cost.fits(n_tokens, self.clock(), deadline)
-        return False
-
     def close(self) -> None:
         llm, self.llm = self.llm, None
         if llm is not None:
@@ -225,7 +213,10 @@ class LlamaCppBackend:
         t0 = self.clock()
         prompt = self.scorer.tokenize(chatml(conversation))
         new = len(prompt) - min(_common_prefix(llm._input_ids.tolist(), prompt), len(prompt) - 1)
-        if deadline is not None and not self._first_pass_fits(new, t0, deadline):
+        # a refusing estimate older than REFRESH_S is re-measured with a short pass (MIN_TOKENS, the least a pass is
+        # costed at) when that fits: a busier moment's estimate would otherwise refuse for ever
+        if deadline is not None and not self.pass_cost.fits_or_remeasured(new, self.clock, deadline, self._calibrate,
+                                                                          MIN_TOKENS):  # fmt: skip
             return Generation("", len(prompt), 0, self.clock() - t0, "timeout")
         if self.llm.n_tokens == 0:  # a calibration pass cleared the context: the prompt is read whole
             new = len(prompt)

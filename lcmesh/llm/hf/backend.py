@@ -156,13 +156,7 @@ class HfBackend:
 
         An estimate that refuses and is stale is re-measured first, if the calibration pass fits.
         """
-        cost = self.pass_cost
-        if cost.fits(n_tokens, self.clock(), deadline):
-            return True
-        if cost.stale(self.clock()) and cost.fits(PROBE_TOKENS, self.clock(), deadline):
-            self.calibrate()
-            return cost.fits(n_tokens, self.clock(), deadline)
-        return False
+        return self.pass_cost.fits_or_remeasured(n_tokens, self.clock, deadline, lambda _n: self.calibrate())
 
     def _out_of_time(self, prompts: list[list[int]], t0: float) -> list[Generation]:
         """The answers of a call whose first pass would end after its deadline: no text, ``timeout``."""
