@@ -56,7 +56,8 @@ CREATE TABLE IF NOT EXISTS checkpoints (
 CREATE TABLE IF NOT EXISTS explanations (
     id INTEGER PRIMARY KEY AUTOINCREMENT, decision_id TEXT NOT NULL, step INTEGER NOT NULL,
     controller TEXT NOT NULL, level TEXT NOT NULL, text TEXT NOT NULL, facts TEXT NOT NULL,
-    source TEXT NOT NULL, created_at TEXT NOT NULL);
+    source TEXT NOT NULL, created_at TEXT NOT NULL, written_by TEXT NOT NULL DEFAULT 'renderer',
+    why_renderer TEXT NOT NULL DEFAULT '', llm_part TEXT NOT NULL DEFAULT '');
 CREATE INDEX IF NOT EXISTS explanations_decision ON explanations (decision_id);
 CREATE TABLE IF NOT EXISTS alerts (
     id INTEGER PRIMARY KEY AUTOINCREMENT, alert_id TEXT NOT NULL, state TEXT NOT NULL, kind TEXT NOT NULL,
@@ -126,6 +127,19 @@ class Checkpoint:
     sensor_state: str  # JSON the Sensor needs besides the FMU state (last safe action, faults)
 
 
+# columns added since the first schema: (table, column, declaration); a file written before them gets them on open
+_ADDED_COLUMNS = (("explanations", "written_by", "TEXT NOT NULL DEFAULT 'renderer'"),
+                  ("explanations", "why_renderer", "TEXT NOT NULL DEFAULT ''"),
+                  ("explanations", "llm_part", "TEXT NOT NULL DEFAULT ''"))  # fmt: skip
+
+
+def _add_missing_columns(conn) -> None:
+    for table, column, decl in _ADDED_COLUMNS:
+        if column not in {row[1] for row in conn.execute(f"PRAGMA table_info({table})")}:
+            conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
+    conn.commit()
+
+
 class HistoryWriter:
     """Writes history rows; safe to share between threads of one process.
 
@@ -139,6 +153,7 @@ class HistoryWriter:
         self._retention = Retention(retention, self.path) if retention is not None else None
         with self._lock:
             self._conn.executescript(_SCHEMA)
+            _add_missing_columns(self._conn)
             if self._retention is not None:
                 self._retention.configure(self._conn)
 
@@ -216,9 +231,9 @@ class HistoryWriter:
     def add_explanation(self, msg: Explanation) -> None:
         facts = json.dumps([f.model_dump() for f in msg.facts])
         self._write([("INSERT INTO explanations (decision_id, step, controller, level, text, facts, source, "
-                      "created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                      "created_at, written_by, why_renderer, llm_part) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                       (msg.decision_id, msg.step, msg.controller, msg.level, msg.text, facts, msg.source,
-                       msg.sent_at.isoformat()))])  # fmt: skip
+                       msg.sent_at.isoformat(), msg.written_by, msg.why_renderer, msg.llm_part))])  # fmt: skip
 
     def add_alert(self, msg: Alert) -> None:
         self._write([("INSERT INTO alerts (alert_id, state, kind, severity, location, message, evidence, "
@@ -334,9 +349,10 @@ class HistoryReader:
         """Applied actions newest first, with source, clamps, fallback and the explanation text if any."""
         run_id = run_id or self.latest_run_id()
         rows = self._rows(
-            "SELECT a.*, (SELECT e.text FROM explanations e WHERE e.decision_id = a.decision_id "
-            "ORDER BY e.id DESC LIMIT 1) AS explanation FROM actions a WHERE a.run_id = ? AND a.step >= ? "
-            "ORDER BY a.step DESC LIMIT ?", (run_id, since_step or 0, limit))  # fmt: skip
+            "SELECT a.*, e.text AS explanation, e.written_by AS explanation_written_by, e.why_renderer AS "
+            "explanation_why_renderer, e.llm_part AS explanation_llm_part FROM actions a LEFT JOIN explanations e ON "
+            "e.id = (SELECT MAX(id) FROM explanations WHERE decision_id = a.decision_id) WHERE a.run_id = ? AND "
+            "a.step >= ? ORDER BY a.step DESC LIMIT ?", (run_id, since_step or 0, limit))  # fmt: skip
         for row in rows:
             row["clamps"] = json.loads(row["clamps"])
             row["action"] = json.loads(row["action"])

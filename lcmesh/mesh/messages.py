@@ -152,6 +152,8 @@ class Explanation(Message):
                                                    "renderer, or the LLM (its text passed the judge)")
     why_renderer: str = Field("", max_length=200, description="with the LLM explaining: why the rendering was "
                               "published (the judge's reason, a timeout, or no verified claim the rendering lacks)")
+    llm_part: Literal["", "whole", "what-if"] = Field("", description="with the LLM's text: 'whole' (it wrote all of "
+                                                      "it) or 'what-if' (the rendering, then its WHAT IF section)")
 
 
 # --- maintenance, monitor, events ---------------------------------------------------------------

@@ -79,3 +79,29 @@ def test_alerts_events_config_and_concurrent_writers(tmp_path):
 def test_reader_needs_an_existing_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="history file not found"):
         HistoryReader(tmp_path / "missing.sqlite")
+
+
+def test_who_wrote_an_explanation_is_kept_and_an_older_file_gains_the_columns(tmp_path, plant, lcopt5):
+    from lcmesh.mesh.messages import Explanation
+
+    path = tmp_path / "old.sqlite"
+    with sqlite3.connect(path) as conn:  # a file written before the who-wrote-it columns
+        conn.execute("CREATE TABLE explanations (id INTEGER PRIMARY KEY AUTOINCREMENT, decision_id TEXT NOT NULL, "
+                     "step INTEGER NOT NULL, controller TEXT NOT NULL, level TEXT NOT NULL, text TEXT NOT NULL, "
+                     "facts TEXT NOT NULL, source TEXT NOT NULL, created_at TEXT NOT NULL)")  # fmt: skip
+        conn.execute("INSERT INTO explanations (decision_id, step, controller, level, text, facts, source, created_at) "
+                     "VALUES ('d0', 0, 'g36', 'short', 'old text', '[]', 'control', '2026-01-01T00:00:00')")
+    w = HistoryWriter(path)
+    w.start_run("run1", lcopt5.name, lcopt5.content_hash(), "trace-x")
+    w.record_step(None, _state(plant, lcopt5, 0), payload=False, checkpoint=None)
+    for k in range(3):
+        w.record_step(_applied(plant, k), _state(plant, lcopt5, k + 1), payload=False, checkpoint=None)
+    w.add_explanation(Explanation(source="control", decision_id="d1", step=1, controller="g36", level="short",
+                                  text="rendering\n\n## WHAT IF\n\nnear 30.1 °C", written_by="llm", llm_part="what-if"))
+    w.add_explanation(Explanation(source="control", decision_id="d2", step=2, controller="g36", level="short",
+                                  text="rendering", why_renderer="timeout"))  # fmt: skip
+    by_id = {d["decision_id"]: d for d in HistoryReader(path).decisions()}
+    assert by_id["d0"]["explanation"] == "old text" and by_id["d0"]["explanation_written_by"] == "renderer"
+    assert by_id["d1"]["explanation_written_by"] == "llm" and by_id["d1"]["explanation_llm_part"] == "what-if"
+    assert by_id["d2"]["explanation_written_by"] == "renderer" and by_id["d2"]["explanation_why_renderer"] == "timeout"
+    HistoryWriter(path).close()  # opening again adds nothing twice

@@ -89,6 +89,7 @@ def test_agents_decisions_alerts_config(api, ui_mesh):
     assert {"source_controller", "source_version", "clamps", "explanation", "fallback", "changes"} <= set(rows[0])
     assert all(isinstance(r["changes"], list) for r in rows), "each row says what changed from the one before it"
     assert any(r["explanation"] for r in rows), "the Control agent's explanations join the decisions"
+    assert {r["explanation_written_by"] for r in rows if r["explanation"]} == {"renderer"}, "who wrote each text"
     assert len(rows[0]["action"]["supply_temp_setpoint_c"]) == 5
     doc = api.get("/api/config").json()
     assert doc["version"] >= 1 and doc["config"]["controller"] in ("g36", "static")

@@ -204,6 +204,9 @@ def test_the_decision_feed_says_what_changed_and_counts_unchanged_steps(browser,
     said = b.js("return [...document.querySelectorAll('#decisions li .change')].map((e) => e.textContent)")
     words = r"(no change|supply setpoint|dp setpoint|leaving-water|cabinet [1-9]|tower [1-9]|\d+ more)"
     assert said and all(re.fullmatch(f"{words}.*", t) for t in said), said  # numbered from 1
+    labels = "return [...document.querySelectorAll('#decisions li details summary')].map((e) => e.textContent)"
+    assert wait_until(lambda: b.js(labels), 20)
+    assert set(b.js(labels)) == {"explanation (rendered from the facts)"}, "each text says who wrote it"
 
     # hold the plant: every step applies the same action, so the feed has nothing new to say
     b.type("#token", ui_mesh.token)

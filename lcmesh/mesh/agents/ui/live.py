@@ -160,7 +160,10 @@ class LiveStore:
                 self.explanations.popitem(last=False)
             self.counts["explanations"] += 1
         self.hub.publish("explanation", dumps({"decision_id": explanation.decision_id, "step": explanation.step,
-                                                "controller": explanation.controller, "text": explanation.text}))  # fmt: skip
+                                                "controller": explanation.controller, "level": explanation.level,
+                                                "text": explanation.text, "written_by": explanation.written_by,
+                                                "why_renderer": explanation.why_renderer,
+                                                "llm_part": explanation.llm_part}))  # fmt: skip
 
     def recent_decisions(self, limit: int) -> list[dict]:
         """The newest `limit` decisions, newest first, each with what it changed from the one before it."""
@@ -168,8 +171,7 @@ class LiveStore:
             items = list(self.applied)[-limit - 1:]
             texts = {a.decision_id: self.explanations.get(a.decision_id) for a in items if a.decision_id}
         pairs = list(zip([None, *items[:-1]], items))[-limit:][::-1]
-        return [decision_view(a, texts[a.decision_id].text if texts.get(a.decision_id) else None, _same_run(b, a))
-                for b, a in pairs]  # fmt: skip
+        return [decision_view(a, texts.get(a.decision_id), _same_run(b, a)) for b, a in pairs]
 
     # --- alerts, monitor, agents, events -----------------------------------------------------------------
     def on_alert(self, alert: Alert) -> None:

@@ -215,6 +215,12 @@ class DecisionRow(BaseModel):
                                       "shows it ('cabinet 3 branch 2 valve 0.31 → 0.36'); [] nothing visible; "
                                       "null: no earlier decision known")
     explanation: str | None
+    explanation_written_by: Literal["renderer", "llm"] | None = Field(
+        None, description="who wrote the explanation's text: the toolbox's renderer, or the LLM (it passed the judge)")
+    explanation_why_renderer: str | None = Field(None, description="with the LLM explaining: why the rendering was "
+                                                 "published instead of its text")
+    explanation_llm_part: str | None = Field(None, description="with the LLM's text: 'whole', or 'what-if' (the "
+                                             "rendering, then the LLM's WHAT IF section)")
 
 
 class DecisionsAnswer(BaseModel):

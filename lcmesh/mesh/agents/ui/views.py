@@ -141,8 +141,9 @@ def clamp_view(clamp: dict[str, Any]) -> dict[str, Any]:
     return {**clamp, "index": [i + 1 for i in clamp.get("index", [])]}
 
 
-def decision_view(a: AppliedAction, explanation: str | None, previous: AppliedAction | None = None) -> dict[str, Any]:
-    """One entry of the decision feed (the same keys as /api/decisions rows); `previous`: the decision before it."""
+def decision_view(a: AppliedAction, explanation: Any | None, previous: AppliedAction | None = None) -> dict[str, Any]:
+    """One entry of the decision feed (the same keys as /api/decisions rows); `explanation`: its Explanation message
+    (or None); `previous`: the decision before it."""
     action = action_view(a.action)
     return {
         "step": a.step, "time_s": a.time_s, "decision_id": a.decision_id, "source_controller": a.source_controller,
@@ -150,7 +151,10 @@ def decision_view(a: AppliedAction, explanation: str | None, previous: AppliedAc
         "rejected_reason": a.rejected_reason, "clamps": [clamp_view(cl.model_dump()) for cl in a.clamps],
         "latency_ms": a.latency_ms, "applied_at": a.sent_at.isoformat(), "action": action,
         "changes": action_changes(action_view(previous.action), action) if previous is not None else None,
-        "explanation": explanation,
+        "explanation": explanation.text if explanation is not None else None,
+        "explanation_written_by": explanation.written_by if explanation is not None else None,
+        "explanation_why_renderer": explanation.why_renderer if explanation is not None else None,
+        "explanation_llm_part": explanation.llm_part if explanation is not None else None,
     }  # fmt: skip
 
 

@@ -188,7 +188,10 @@ function renderAgents(rows) {
 const explanations = new Map();
 const writtenBy = new Map();  // decision id -> "llm" | "renderer": who wrote the explanation's text
 const whyRenderer = new Map();  // decision id -> why the rendering stood in for the LLM's text
-const explainLabel = (id) => (writtenBy.get(id) === "llm" ? "explanation (written by the LLM, checked)"
+const llmPart = new Map();  // decision id -> "what-if": the rendering, then the LLM's checked WHAT IF section
+const explainLabel = (id) => (writtenBy.get(id) === "llm" ? (llmPart.get(id) === "what-if"
+    ? "explanation (rendered from the facts; WHAT IF written by the LLM, checked)"
+    : "explanation (written by the LLM, checked)")
   : whyRenderer.get(id) ? `explanation (rendered from the facts: ${whyRenderer.get(id)})`
   : writtenBy.has(id) ? "explanation (rendered from the facts)" : "explanation");
 
@@ -220,6 +223,8 @@ function decisionItem(d, count = 1, firstStep = d.step) {
     li.append(el("div", { class: d.changes.length ? "change" : "change muted" }, what));
   }
   const text = d.explanation || explanations.get(d.decision_id);
+  if (d.explanation_written_by) rememberWriter({ decision_id: d.decision_id, written_by: d.explanation_written_by,
+    why_renderer: d.explanation_why_renderer, llm_part: d.explanation_llm_part });
   if (text) {
     const det = el("details");
     det.append(el("summary", {}, explainLabel(d.decision_id)), el("pre", {}, text));
@@ -241,15 +246,22 @@ function addDecision(d) {
   while (list.children.length > 60) list.lastChild.remove();
 }
 
-function addExplanation(x) {
-  explanations.set(x.decision_id, x.text);
+// who wrote an explanation (from the stream's explanation event or a /api/decisions row), for its label
+function rememberWriter(x) {
   if (x.written_by) writtenBy.set(x.decision_id, x.written_by);
   if (x.why_renderer) whyRenderer.set(x.decision_id, x.why_renderer);
+  if (x.llm_part) llmPart.set(x.decision_id, x.llm_part);
+}
+
+function addExplanation(x) {
+  explanations.set(x.decision_id, x.text);
+  rememberWriter(x);
   if (explanations.size > 200) {
     const oldest = explanations.keys().next().value;
     explanations.delete(oldest);
     writtenBy.delete(oldest);
     whyRenderer.delete(oldest);
+    llmPart.delete(oldest);
   }
   const li = document.querySelector(`#decisions li[data-decision="${CSS.escape(x.decision_id)}"]`);
   if (li && !li.querySelector("details")) {
