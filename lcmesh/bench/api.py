@@ -240,11 +240,13 @@ __all__ = ["run_bench_api", "render_api", "state_load", "chat_latency"]
 
 
 def run_live_planner(n_questions: int = 40, *, controller: str | None = None, speed_factor: float | None = None,
-                     hold_minutes: float = 0.0, say: Callable[[str], None] = print) -> dict:  # fmt: skip
+                     hold_minutes: float = 0.0, explainer: str | None = None,
+                     say: Callable[[str], None] = print) -> dict:  # fmt: skip
     """The demo mesh as `lcmesh demo` runs it (default speed and controller, the UI's default planner: the local
     LLM), real processes on loopback; ``n_questions`` of the chat benchmark's test split asked through
     ``POST /api/chat`` one after another. Who planned each answer (the ``planned_by`` of the reply) and its
-    latency; the mesh keeps running its agents meanwhile (that is the point)."""
+    latency; the mesh keeps running its agents meanwhile (that is the point). ``explainer = "llm"``: the Control
+    agent's explanations by the LLM (``LCMESH_CONTROL__EXPLAINER``), and its count of who wrote them."""
     from lcmesh.bench.chat import load_questions
 
     root = Path(tempfile.mkdtemp(prefix="lcmesh-live-planner-"))
@@ -258,10 +260,11 @@ def run_live_planner(n_questions: int = 40, *, controller: str | None = None, sp
     token = secrets.token_urlsafe(24)
     demo = Demo(settings, say=lambda _line: None)
     demo.env.update({"LCMESH_API_TOKEN": token, "LCMESH_UI_CHAT_RATE_PER_MIN": "100000",
-                     "LCMESH_UI_CHAT_BURST": "100000"})  # fmt: skip
+                     "LCMESH_UI_CHAT_BURST": "100000", **({"LCMESH_CONTROL__EXPLAINER": explainer} if explainer else {})})  # fmt: skip
     url = f"http://127.0.0.1:{ui_port}"
     questions = [q for q in load_questions("test") if not q.refuse][:n_questions]
     result: dict = {"machine": machine_info(), "speed_factor": settings.speed_factor, "controller": settings.controller,
+                    "explainer": explainer or settings.control.explainer,
                     "defaults": {"speed_factor": defaults.speed_factor, "controller": defaults.controller},
                     "load_avg_1min_start": os.getloadavg()[0]}  # fmt: skip
     rows = []
@@ -320,8 +323,20 @@ def render_live_planner(r: dict) -> str:
         "| figure | measured | target |", "|---|---|---|",
         f"| answers planned by the LLM | {100 * r['llm_share']:.0f} % ({r['planned_by']}) | >= 95 % |",
         f"| answer latency p50 / p99 | {r['p50_s']:.2f} / {r['p99_s']:.2f} s | p99 <= 3 s |",
-        *_decided_rows(r),
+        *_decided_rows(r), *_explained_rows(r),
     ])  # fmt: skip
+
+
+def _explained_rows(r: dict) -> list[str]:
+    """The Control agent's count of who wrote its explanations, with the LLM explaining."""
+    wrote = (r.get("controller_state") or {}).get("explained_by")
+    if not wrote:
+        return []
+    n = max(wrote["explanations"], 1)
+    return [f"| {wrote['level']} explanations published with a verified what-if claim the rendering lacks, within "
+            f"{wrote['target_s']:g} s (the Control agent's count; slowest {wrote['llm_explain_s_max']:.2f} s) | "
+            f"{wrote['llm_texts_in_target']} of {wrote['explanations']} ({100 * wrote['llm_texts_in_target'] / n:.0f} %; "
+            f"{wrote['summary']}) | >= 50 % |"]
 
 
 def _decided_rows(r: dict) -> list[str]:

@@ -28,14 +28,18 @@ def bench_chat(
                                                    min=0.1, max=1000)] = None,
     hold: Annotated[float, typer.Option(help="--live: minutes the mesh runs on after the questions, for the "
                                         "controller's count of who decided", min=0, max=600)] = 0.0,
+    explainer: Annotated[Optional[str], typer.Option(help="--live: 'llm': the Control agent explains with the LLM "
+                                                     "(its count of who wrote them is reported)")] = None,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
+    if explainer not in (None, "renderer", "llm"):
+        raise typer.BadParameter(f"must be 'renderer' or 'llm', got {explainer!r}", param_hint="--explainer")
     if live:
         from lcmesh.bench.api import render_live_planner, run_live_planner
 
         with console.status("live demo") as status:
             result = run_live_planner(live, controller=controller, speed_factor=speed, hold_minutes=hold,
-                                      say=lambda m: status.update(m))  # fmt: skip
+                                      explainer=explainer, say=lambda m: status.update(m))  # fmt: skip
         write_bench(json_out, markdown, "chat-live", result, render=render_live_planner)
         return
     from lcmesh.bench import chat

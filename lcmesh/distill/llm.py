@@ -97,9 +97,11 @@ def explanation_samples(
     """(facts prompt, target text) pairs for teacher decisions at random steps and cabinets of one rollout.
 
     The target is the renderer's text; with ``whatif`` the prompt also lists the what-if facts and the target
-    ends with a WHAT IF section citing them. ``trace_spec`` may name a scenario (``SPEC@SCENARIO``).
+    ends with a WHAT IF section citing them. The ``whatif`` level is the short level's LLM part: the compact prompt
+    (``whatif_messages``) and the WHAT IF section alone, on the hottest branch. ``trace_spec`` may name a scenario
+    (``SPEC@SCENARIO``).
     """
-    from lcmesh.llm.explainer import explain_messages
+    from lcmesh.llm.explainer import SHORT_WHATIF_CLAIMS, explain_messages, short_whatif_facts, whatif_messages
     from lcmesh.mesh.tools.explain import render_explanation, render_whatif
     from lcmesh.mesh.tools.facts import cabinet_decision_facts, decision_whatif_facts
     from lcmesh.twin.controllers import Observation
@@ -131,6 +133,13 @@ def explanation_samples(
                 cabinet = int(rng.integers(system.cabinets.count))
                 facts = cabinet_decision_facts(system, out, action, previous, obs.wet_bulb_k, cabinet)
                 level = levels[k_pick]
+                if level == "whatif":
+                    extra = decision_whatif_facts(system, out, action, previous, obs.wet_bulb_k, cabinet)
+                    claims = [f for f in extra if f.name in SHORT_WHATIF_CLAIMS]
+                    samples.append((whatif_messages(short_whatif_facts(facts, extra)),
+                                    render_whatif(claims, int(rng.integers(6)))))  # fmt: skip
+                    k_pick += 1
+                    continue
                 target = render_explanation(facts, level)
                 if whatif:
                     extra = decision_whatif_facts(system, out, action, previous, obs.wet_bulb_k, cabinet)

@@ -86,6 +86,9 @@ class LlmBackendSettings(BaseSettings):
     adapter: str = Field(
         "default", description="local only: LoRA adapter folder, 'default' (the packaged one if present) or 'none'"
     )
+    short_adapter: str = Field("default", description="local only: the short level's what-if adapter on llama.cpp "
+                               "('default': the packaged llm-short, a folder, or 'none': the short text is the "
+                               "configured runtime's), docs/llm.md")
     runtime: str = Field("transformers", description="local only: transformers (the unpacked weights; the "
                          "explainer's draft-verified decoding) | llama.cpp (the shipped GGUF). The controller and the "
                          "planner always run on llama.cpp; the explainer stays on transformers: its first pass reads "

@@ -93,10 +93,10 @@ class LlmDistillConfig:
         counts = {}
         for part in self.explain_samples.split(","):
             level, _, n = part.strip().partition(":")
-            if level not in ("short", "detailed", "very_detailed") or not n.strip().isdigit():
+            if level not in ("short", "detailed", "very_detailed", "whatif") or not n.strip().isdigit():
                 raise ValueError(
                     f"`explain_samples` must look like 'short:24,detailed:8' (levels short, detailed, "
-                    f"very_detailed), got {self.explain_samples!r}"
+                    f"very_detailed, or whatif: the short level's WHAT IF section alone), got {self.explain_samples!r}"
                 )
             counts[level] = int(n)
         return counts

@@ -30,7 +30,8 @@ import numpy as np
 from lcmesh.llm.model_cache import models_dir
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
-PACKAGED = {"explain": ARTIFACTS / "llm", "control": ARTIFACTS / "llm-control", "planner": ARTIFACTS / "llm-planner"}
+PACKAGED = {"explain": ARTIFACTS / "llm", "explain-short": ARTIFACTS / "llm-short", "control": ARTIFACTS / "llm-control",
+            "planner": ARTIFACTS / "llm-planner"}  # fmt: skip
 PROJECTIONS = {"q_proj": "attn_q", "k_proj": "attn_k", "v_proj": "attn_v", "o_proj": "attn_output",
                "gate_proj": "ffn_gate", "up_proj": "ffn_up", "down_proj": "ffn_down"}  # fmt: skip
 N_HEAD, N_HEAD_KV = 9, 3  # SmolLM2-135M

@@ -88,6 +88,9 @@ class ControlConfig(_Component):
     explainer: Literal["renderer", "llm"] = Field(
         "renderer", description="who writes the text: the toolbox renderer, or the local LLM with the toolbox's "
         "what-if facts, checked by the judge and replaced by the rendering when it fails (docs/llm.md)")
+    explain_level: Literal["short", "detailed"] = Field(
+        "short", description="the LLM's level (explainer = llm): short (the rendering and the LLM's what-if, 3 s "
+        "budget) or detailed (the LLM's whole text, 10 s budget)")
     inline: bool = Field(True, description="decide in the bus callback (lowest latency); false: in a worker "
                          "thread with a one-item mailbox, for policies slower than a control period")
 

@@ -178,3 +178,12 @@ def test_dagger_seeds_must_be_training_seeds():
                                                                          "synthetic:31@design-day"]  # fmt: skip
     with pytest.raises(ValueError, match="dagger_hours"):
         LlmControlDistillConfig(dagger_hours=0)
+
+
+def test_whatif_samples_pair_the_compact_prompt_with_the_whatif_section(lcopt5):
+    samples = explanation_samples(make_controller("g36", lcopt5), lcopt5, "synthetic:0", 30, {"whatif": 3}, seed=0)
+    assert len(samples) == 3
+    for (system, user), text in samples:
+        assert "Sections: WHAT IF" in system["content"]
+        assert "hottest_branch_expected = " in user["content"] and "dp_setpoint" not in user["content"]
+        assert text.startswith("## WHAT IF\n\n") and "°C" in text and "pump" not in text

@@ -197,3 +197,58 @@ def test_whatif_estimates_follow_the_toolbox_relations(decision, lcopt5):
     assert f["dp_tradeoff_pump_power"].value == pytest.approx(
         f["pump_power_expected"].value - f["pump_power_if_dp_held"].value, abs=2e-3)
     assert f["top_input"].value in ("hottest branch temperature", "cabinet load", "wet bulb")
+
+
+# --- the short level's what-if (the rendering, then the LLM's WHAT IF section) -------------------------------------
+
+
+def test_a_short_text_with_a_short_backend_is_the_rendering_then_the_llms_verified_whatif(decision, lcopt5):
+    from lcmesh.mesh.tools.explain import render_whatif
+
+    out, action, previous = decision
+    facts, extra = _whatif(decision, lcopt5)
+    claims = [f for f in extra if f.name in ("hottest_branch_expected", "hottest_branch_if_held")]
+    short = EchoBackend(render_whatif(claims))
+    main = EchoBackend()
+    explainer = LlmExplainer(lcopt5, main, short_backend=short)
+    r = explainer.explain(out, action, previous, 291.15, 1, "short")
+    assert main.calls == []  # the short level goes to the short backend only
+    (system, user), = short.calls[0][0]
+    assert "Sections: WHAT IF" in system["content"] and "hottest_branch_if_held = " in user["content"]
+    assert "dp_setpoint" not in user["content"] and "branch_1_valve" not in user["content"]  # the compact prompt
+    assert r.source == "llm" and r.llm_part == "what-if" and r.fallback_reason is None
+    assert r.text.startswith(r.rendered.rstrip()) and "## WHAT IF" in r.text
+    assert r.rendered == render_explanation(facts, "short")
+    assert "hottest_branch_expected" in r.whatif_claims or "hottest_branch_if_held" in r.whatif_claims
+
+
+@pytest.mark.parametrize("written, reason", [("", "no_whatif"), ("## WHAT IF\n\n", "no_whatif"),
+                                             ("The branch is fine.", "no_whatif"),
+                                             ("## WHAT IF\n\nThe hottest branch should sit near 99.9 °C.",
+                                              "numeric_grounding")])  # fmt: skip: a short text fails the share
+def test_a_short_whatif_that_is_missing_or_wrong_leaves_the_rendering(decision, lcopt5, written, reason):
+    out, action, previous = decision
+    explainer = LlmExplainer(lcopt5, EchoBackend(), short_backend=EchoBackend(written))
+    r = explainer.explain(out, action, previous, 291.15, 1, "short")
+    assert r.source == "renderer" and r.fallback_reason == reason and r.text == r.rendered
+    assert r.llm_part == "what-if" and explainer.stats[f"fallback_{reason}"] == 1
+
+
+def test_the_packaged_short_adapter_writes_a_verified_whatif_on_llama_cpp(decision, lcopt5):
+    """The shipped ``explain-short`` adapter, on the real runtime (no budget: a frozen clock)."""
+    from lcmesh.llm.base import LlmBackendSettings
+    from lcmesh.llm.explainer import short_backend_for
+
+    short = short_backend_for(LlmBackendSettings())
+    if short is None:
+        pytest.skip("llama-cpp-python is not installed")
+    try:
+        explainer = LlmExplainer(lcopt5, EchoBackend(), short_backend=short.with_clock(frozen_clock))
+        out, action, previous = decision
+        results = [explainer.explain(out, action, previous, 291.15, c, "short") for c in range(lcopt5.cabinets.count)]
+    finally:
+        short.close()
+    assert all(r.llm_part == "what-if" for r in results)
+    passed = [r for r in results if r.source == "llm"]
+    assert len(passed) >= len(results) - 1, [r.fallback_reason for r in results]
+    assert all(r.whatif_claims for r in passed), [r.text.split("## WHAT IF")[-1] for r in passed]

@@ -44,6 +44,8 @@ from lcmesh.twin.controllers import Controller, ControllerError, Observation, ma
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription, load_system
 
+# the issue's targets for an explanation, whole pipeline (facts, rendering, LLM, judge): short 3 s, detailed 10 s
+EXPLAIN_TARGET_S = {"short": 3.0, "detailed": 10.0}
 log = logging.getLogger("lcmesh.mesh.agents.control")
 FALLBACK_CONTROLLER = "g36"
 _K = 273.15
@@ -165,7 +167,8 @@ class ControlAgent(Agent):
         self._applied_step = -1
         self._last_proposal: Proposal | None = None
         self.tally = {"decisions": 0, "repeats": 0, "bad_states": 0, "explanations": 0, "llm_texts": 0,
-                      "llm_fallbacks": 0}  # fmt: skip
+                      "llm_fallbacks": 0, "llm_texts_in_target": 0, "llm_explain_s_max": 0.0,
+                      "llm_fallback_reasons": {}}  # fmt: skip
         self._llm_explainer = None
         self._explain_thread: threading.Thread | None = None
 
@@ -190,9 +193,27 @@ class ControlAgent(Agent):
         c = self.controller
         report = getattr(c, "decided_by", None)
         return {"controller": getattr(c, "name", None), "controller_version": getattr(c, "version", None),
-                "wanted": self.config.controller, "note": self.controller_note, **self.tally,
+                "wanted": self.config.controller, "note": self.controller_note,
+                **{k: dict(v) if isinstance(v, dict) else v for k, v in self.tally.items()},  # a copy: the explain
+                # thread adds to the reasons while the stats are sent
                 "skipped_states": self._states.replaced, "skipped_explanations": self._explain_jobs.replaced,
-                **({"decided_by": report()} if callable(report) else {})}  # fmt: skip
+                **({"decided_by": report()} if callable(report) else {}),
+                **({"explained_by": self.explained_by()} if self.cfg.explain and self.cfg.explainer == "llm" else {})}  # fmt: skip
+
+    def explained_by(self) -> dict:
+        """Who wrote the published explanations with the LLM explaining: its share, the renderer's reasons, in a line."""
+        t, level = self.tally, self.cfg.explain_level
+        n = t["llm_texts"] + t["llm_fallbacks"]
+        reasons = dict(t["llm_fallback_reasons"])
+        part = "its WHAT IF after the rendering" if level == "short" else "the whole text"
+        summary = (f"the LLM wrote {part} in {t['llm_texts']} of {n} {level} explanations "
+                   f"({t['llm_texts_in_target']} within {EXPLAIN_TARGET_S[level]:g} s)"
+                   + (f"; the rendering stood in for {t['llm_fallbacks']}: "
+                      + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+                      if t["llm_fallbacks"] else ""))  # fmt: skip
+        return {"level": level, "explanations": n, "llm_texts": t["llm_texts"],
+                "llm_texts_in_target": t["llm_texts_in_target"], "target_s": EXPLAIN_TARGET_S[level],
+                "llm_explain_s_max": t["llm_explain_s_max"], "fallback_reasons": reasons, "summary": summary}  # fmt: skip
 
     def _on_config(self, old: MeshConfig, new: MeshConfig) -> None:
         if new.controller != old.controller and self.controller is not None:
@@ -279,24 +300,32 @@ class ControlAgent(Agent):
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
     def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation:
-        """The local LLM's detailed explanation of the hottest cabinet's decision where it adds a verified what-if claim
-        the rendering lacks; the rendering where it fails the judge or adds none (said in ``why_renderer``). The
-        detailed level, since only its budget leaves room for the what-if section (docs/llm.md)."""
-        from lcmesh.llm.base import make_backend
-        from lcmesh.llm.explainer import LlmExplainer
+        """The local LLM's explanation (``explain_level``) of the hottest cabinet's decision where it adds a verified
+        what-if claim the rendering lacks; the rendering where it fails the judge or adds none (said in
+        ``why_renderer``). Short: the rendering and the LLM's WHAT IF section (docs/llm.md)."""
+        from lcmesh.llm.explainer import make_explainer
 
         if self._llm_explainer is None:
-            self._llm_explainer = LlmExplainer(self.system, make_backend())
+            self._llm_explainer = make_explainer(self.system, short_only=self.cfg.explain_level == "short")
+        level = self.cfg.explain_level
         cabinet = int(np.argmax(obs.out["branch_temp_k"].max(axis=1)))
-        r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, "detailed",
+        t0 = time.perf_counter()  # the whole explanation: facts, rendering, LLM, judge
+        r = self._llm_explainer.explain(obs.out, action, previous, obs.wet_bulb_k, cabinet, level,
                                         record_id=decision_id)  # fmt: skip
+        seconds = time.perf_counter() - t0
         text, why = r.text, r.fallback_reason or ""
         if r.source == "llm" and not r.whatif_claims:  # it passed the judge, but says nothing the rendering lacks
-            text, why = render_explanation(r.facts, "detailed"), "no verified claim the rendering lacks"
+            text, why = r.rendered, "no verified claim the rendering lacks"
         by_llm = r.source == "llm" and not why
         self.tally["llm_texts" if by_llm else "llm_fallbacks"] += 1
+        self.tally["llm_texts_in_target"] += by_llm and seconds <= EXPLAIN_TARGET_S[level]
+        self.tally["llm_explain_s_max"] = round(max(self.tally["llm_explain_s_max"], seconds), 3)
+        if why:
+            reasons = self.tally["llm_fallback_reasons"]
+            reasons[why] = reasons.get(why, 0) + 1
         return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
-                           level="detailed", text=text, written_by="llm" if by_llm else "renderer", why_renderer=why,
+                           level=level, text=text, written_by="llm" if by_llm else "renderer", why_renderer=why,
+                           llm_part=r.llm_part if by_llm else "",
                            facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:

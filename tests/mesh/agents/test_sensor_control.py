@@ -243,8 +243,9 @@ def test_a_slow_policy_in_worker_mode_repeats_its_last_action_instead_of_a_fallb
     assert sensor.tally["proposals_applied"] >= 10
 
 
-def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_agent, mesh_settings):
-    mesh_settings.control.explainer = "llm"
+@pytest.mark.parametrize("level, heading", [("short", "## EXPLANATION"), ("detailed", "## EXECUTIVE SUMMARY")])
+def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_agent, mesh_settings, level, heading):
+    mesh_settings.control.explainer, mesh_settings.control.explain_level = "llm", level
     control = start_agent(ControlAgent)
     start_agent(SensorAgent)
     assert wait_until(lambda: control.tally["llm_texts"] + control.tally["llm_fallbacks"] >= 1, 120)
@@ -252,7 +253,7 @@ def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_a
     explained = wait_until(lambda: history.explanations(limit=5), 30)
     names = {f["name"] for f in explained[0]["facts"]}
     assert {"cabinet", "supply_setpoint", "hottest_branch_expected", "top_input"} <= names
-    assert "## EXECUTIVE SUMMARY" in explained[0]["text"]  # the LLM's text passed the judge, or the rendering did
+    assert heading in explained[0]["text"] and explained[0]["level"] == level  # the LLM's text or the rendering
     stats = control._llm_explainer.stats
     assert stats["explanations"] == stats["llm"] + stats["renderer"] >= 1
     # published as the LLM's only where it adds a verified what-if claim; else the rendering, said why
@@ -260,6 +261,8 @@ def test_the_llm_explainer_publishes_a_judged_text_with_the_whatif_facts(start_a
     assert published <= stats["llm_with_whatif_claim"] <= published + 1, (control.tally, stats)
     if published == 0:
         assert all("## WHAT IF" not in e["text"] for e in history.explanations(limit=50))
+    if level == "short" and control._llm_explainer.short_backend is not None:  # the packaged what-if adapter
+        assert all(e.get("llm_part") in (None, "", "what-if") for e in history.explanations(limit=50))
 
 
 def test_the_llm_controller_runs_paced_in_the_mesh_and_says_who_decided(start_agent, mesh_settings):

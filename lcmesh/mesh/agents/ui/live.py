@@ -101,6 +101,7 @@ class LiveStore:
         self.events: deque[AgentEvent] = deque(maxlen=200)
         self.agents: dict[str, dict] = {}
         self.decided_by: dict | None = None  # the Control agent's word on who decided (a controller that falls back)
+        self.explained_by: dict | None = None  # and on who wrote the explanations (with the LLM explaining)
         self.counts: Counter = Counter()
         self.decisions_by_source: Counter = Counter()
         self.alerts_raised: Counter = Counter()
@@ -115,6 +116,8 @@ class LiveStore:
             view = state_view(state, self.system, latest)
             if view.get("controller") is not None and self.decided_by is not None:
                 view["controller"]["decided_by"] = self.decided_by
+            if view.get("controller") is not None and self.explained_by is not None:
+                view["controller"]["explained_by"] = self.explained_by
         except ValueError as exc:
             self.counts["bad_states"] += 1
             log.warning("dropped plant state %s: %s", state.id, exc)
@@ -211,6 +214,7 @@ class LiveStore:
             entry["stats"], entry["stats_at"] = stats, time.monotonic()
             if stats.role == "control":
                 self.decided_by = stats.details.get("decided_by")
+                self.explained_by = stats.details.get("explained_by")
 
     def agents_view(self) -> list[dict]:
         """Every agent seen: alive (liveliness token), last stats, and the monitor's advice about it."""

@@ -149,7 +149,8 @@ class StateView(BaseModel):
     towers: list[TowerView]
     controller: dict[str, Any] | None = Field(
         description="who decided the last applied action; for a controller that falls back (the LLM) `decided_by` "
-        "gives the LLM's share of decisions, the fallback's reasons and the decision period in force")
+        "gives the LLM's share of decisions, the fallback's reasons and the decision period in force; with the LLM "
+        "explaining, `explained_by` gives its share of the published explanations and why the rendering stood in")
 
 
 class HistoryAnswer(BaseModel):

@@ -121,7 +121,9 @@ function onState(s) {
   if (s.controller) {
     $("acting").textContent = s.controller.source + (s.controller.fallback ? " (fallback)" : "");
     const who = s.controller.decided_by;  // a controller that falls back says who made its decisions and why not
-    $("decided-by").textContent = who ? `(${who.summary})` : "";
+    const wrote = s.controller.explained_by;  // with the LLM explaining: who wrote the published explanations
+    $("decided-by").textContent = [who && `(${who.summary})`, wrote && `(explanations: ${wrote.summary})`]
+      .filter(Boolean).join(" ");
   }
   renderSupply(s);
   renderValves(s);
