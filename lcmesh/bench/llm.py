@@ -496,8 +496,18 @@ def _render_whole_days(wd: dict) -> list[str]:
         lines.append(f"| {name} | {wd['mean_d_blade'][name]:.2f} | "
                      + " | ".join(f"{days[d]['d_blade_pct']:.2f}" for d in labels) + " |")  # fmt: skip
     lines += ["", f"Gap to the teacher: {wd['gap_points']:+.2f} points (target: within 1). " + _llm_line(wd["llm_stats"])]
-    if wd.get("run"):  # measured in a run of their own (`--sections days`)
+    if wd.get("run"):  # measured in runs of their own (`--sections days`)
         run = wd["run"]
         lines.append(f"Measured by `lcmesh bench llm --sections days --days {','.join(labels)} --whole-day-period "
                      f"{wd['period_steps']}` at commit {run['commit']}, {run['date']}.")
+    from lcmesh.bench.suite import TEST_DAYS
+
+    missing = [d.label for d in TEST_DAYS if d.label not in labels]
+    llm, ppo = wd["days"]["llm"], wd["days"]["ppo"]
+    cooling = {name: sum(days[d]["cooling_kwh"] for d in labels) for name, days in (("llm", llm), ("ppo", ppo))}
+    wall_h = np.mean([llm[d]["wall_s"] for d in labels]) / 3600
+    lines.append(f"Cooling energy over the days: {cooling['llm']:,.0f} kWh for the LLM against {cooling['ppo']:,.0f} "
+                 f"for the teacher ({100 * (cooling['llm'] / cooling['ppo'] - 1):+.1f} %). A day took {wall_h:.2f} h "
+                 f"of one core for the LLM." + (f" Not run: {', '.join(missing)} ({len(labels)} of {len(TEST_DAYS)} "
+                                                 f"test days measured)." if missing else ""))  # fmt: skip
     return lines
