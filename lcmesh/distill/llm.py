@@ -295,6 +295,7 @@ def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict
             "train": {"steps": result.steps, "loss_first": result.losses[0], "loss_last": result.losses[-1],
                       "loss_last10_mean": float(np.mean(result.losses[-10:])), "tokens": result.tokens,
                       "target_tokens": result.target_tokens, "tokens_per_s": result.tokens_per_s,
+                      "compute_dtype": train_cfg.compute_dtype,
                       "seconds": result.seconds, "truncated_samples": result.truncated},
             "data_seconds": data_seconds,
             "heldout": heldout,

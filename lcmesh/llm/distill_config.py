@@ -43,7 +43,8 @@ class LlmDistillConfig:
     """Steps of the explanation rollout (one training trace) the explanation samples are drawn from."""
     quant: str = "nf4"
     """nf4: QLoRA (4-bit base via bitsandbytes); none: plain LoRA (for comparison)."""
-    compute_dtype: str = "bfloat16"
+    compute_dtype: str = "auto"
+    """Matmul dtype of the frozen base: auto (bfloat16 where the CPU has native bfloat16, else float32), bfloat16, float32."""
     epochs: float = 1.3
     lr: float = 2e-3
     r: int = 8

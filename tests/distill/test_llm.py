@@ -187,3 +187,19 @@ def test_whatif_samples_pair_the_compact_prompt_with_the_whatif_section(lcopt5):
         assert "Sections: WHAT IF" in system["content"]
         assert "hottest_branch_expected = " in user["content"] and "dp_setpoint" not in user["content"]
         assert text.startswith("## WHAT IF\n\n") and "°C" in text and "pump" not in text
+
+
+def test_auto_compute_dtype_is_bfloat16_only_where_the_cpu_multiplies_it_natively():
+    import torch
+
+    from lcmesh.llm.hf.train import LoraTrainConfig, fast_compute_dtype
+
+    if torch.cuda.is_available():
+        pytest.skip("a GPU trains in bfloat16 whatever the CPU")
+    assert fast_compute_dtype("flags : fpu sse2 avx2 fma") == "float32"
+    assert fast_compute_dtype("flags : fpu avx2 avx512f avx512_bf16") == "bfloat16"
+    assert fast_compute_dtype("flags : fpu avx2 amx_bf16 amx_tile") == "bfloat16"
+    assert LoraTrainConfig().compute_dtype in ("float32", "bfloat16")  # auto resolves on construction
+    assert LoraTrainConfig(compute_dtype="bfloat16").compute_dtype == "bfloat16"
+    with pytest.raises(ValueError, match="compute_dtype"):
+        LoraTrainConfig(compute_dtype="fp8")
