@@ -11,6 +11,9 @@ import pytest
 # test mesh (and compose process) would cost minutes of the two cores; tests/llm/test_planner.py and
 # `lcmesh bench chat` exercise the LLM planner itself.
 os.environ.setdefault("LCMESH_UI_PLANNER", "rules")
+# Likewise the Control agents explain with the renderer alone: the LLM explainer keeps a core busy while a mesh runs;
+# tests/mesh/agents/test_sensor_control.py and `lcmesh bench chat --live` exercise it in an agent and in the demo.
+os.environ.setdefault("LCMESH_CONTROL__EXPLAINER", "renderer")
 # One intra-op thread for torch here and in every process a test starts (the variable is inherited). The tier must
 # pass on a machine whose two cores are busy with other work, and there torch's default of one thread per core
 # oversubscribes them: its threads wait at every operation's barrier for a sibling the scheduler has parked. Measured

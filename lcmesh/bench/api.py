@@ -315,7 +315,8 @@ def render_live_planner(r: dict) -> str:
         f"## Chat planner in the running demo (`lcmesh bench chat --live {r['questions']} --json "
         "runs/bench/chat-live.json --markdown BENCHMARKS.md`)", "",
         f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}. The demo mesh as "
-        f"`lcmesh demo` starts it (lcopt-5 at {r['speed_factor']:g}x, controller {r['controller']}; the defaults are "
+        f"`lcmesh demo` starts it (lcopt-5 at {r['speed_factor']:g}x, controller {r['controller']}, explanations by "
+        f"the {r.get('explainer', 'renderer')}; the defaults are "
         f"{r['defaults']['speed_factor']:g}x and {r['defaults']['controller']}), real processes on loopback; "
         f"{r['questions']} questions of the chat benchmark's test split (refusals left out) through `POST /api/chat`, "
         f"one after another while the agents run. Load average {r['load_avg_1min_start']:.1f} at the start, "
@@ -336,7 +337,9 @@ def _explained_rows(r: dict) -> list[str]:
     return [f"| {wrote['level']} explanations published with a verified what-if claim the rendering lacks, within "
             f"{wrote['target_s']:g} s (the Control agent's count; slowest {wrote['llm_explain_s_max']:.2f} s) | "
             f"{wrote['llm_texts_in_target']} of {wrote['explanations']} ({100 * wrote['llm_texts_in_target'] / n:.0f} %; "
-            f"{wrote['summary']}) | >= 50 % |"]
+            f"{wrote['summary']}). Of all {wrote.get('decisions', r.get('plant_steps'))} decisions' explanations, "
+            f"{wrote['llm_texts']} ({100 * wrote['llm_texts'] / max(wrote.get('decisions', r.get('plant_steps')) or 1, 1):.0f} %) "
+            f"carry the LLM's text: at {r['speed_factor']:g}x a step is shorter than an explanation | >= 50 % |"]
 
 
 def _decided_rows(r: dict) -> list[str]:

@@ -86,8 +86,9 @@ class ControlConfig(_Component):
     loop: str = Field("plant", pattern=NAME_PATTERN)
     explain: bool = Field(True, description="publish an explanation (facts + text) for every decision")
     explainer: Literal["renderer", "llm"] = Field(
-        "renderer", description="who writes the text: the toolbox renderer, or the local LLM with the toolbox's "
-        "what-if facts, checked by the judge and replaced by the rendering when it fails (docs/llm.md)")
+        "llm", description="who writes the text: the toolbox renderer for every decision, and by default the local "
+        "LLM's text for the newest one, with the toolbox's what-if facts, published over the rendering only where the "
+        "judge verified a what-if claim the rendering lacks (docs/llm.md; renderer: the rendering alone)")
     explain_level: Literal["short", "detailed"] = Field(
         "short", description="the LLM's level (explainer = llm): short (the rendering and the LLM's what-if, 3 s "
         "budget) or detailed (the LLM's whole text, 10 s budget)")

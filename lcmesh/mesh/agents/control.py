@@ -5,9 +5,12 @@ facts behind it (hottest branch, setpoints and their changes: cheap, so they rid
 critical path). Right after publishing it computes the full grounding facts (the toolbox's
 ``cabinet_decision_facts`` for the cabinet with the hottest branch, or the controller's own
 ``explain_facts``) and the deterministic text, and writes that explanation, under the same
-decision id, to history and to ``explain/{decision_id}``. With ``explainer = "llm"`` the local LLM
-writes a detailed text of toolbox-fact decisions from the facts and the toolbox's what-if facts (which then
-ride along in ``facts``); the judge checks it and the rendering stands in when it fails (counted).
+decision id, to history and to ``explain/{decision_id}``. With ``explainer = "llm"`` every decision
+still gets that rendering, and the newest rendered decision goes on to the local LLM (a thread of its
+own, at ``explain_level``: short, the rendering and the LLM's WHAT IF section; or detailed) with the
+toolbox's what-if facts; the judge checks its text, which is published over the rendering, under the
+same decision id, only where it adds a verified what-if claim the rendering lacks. Otherwise the
+rendering stays and the reason is counted (``explained_by`` in the stats).
 
 By default the decision runs in the bus callback (no thread hand-off: lowest latency). For a policy
 slower than a control period (the LLM), ``inline = false`` moves it to a worker thread with a
@@ -160,6 +163,7 @@ class ControlAgent(Agent):
         self._decide_lock = threading.Lock()
         self._states = LatestSlot()
         self._explain_jobs = LatestSlot()
+        self._llm_jobs = LatestSlot()  # rendered decisions the LLM may add its text to: the newest one
         self._previous: PlantAction | None = None
         self._run_id: str | None = None
         self._last_state_id: str | None = None
@@ -170,7 +174,7 @@ class ControlAgent(Agent):
                       "llm_fallbacks": 0, "llm_texts_in_target": 0, "llm_explain_s_max": 0.0,
                       "llm_fallback_reasons": {}}  # fmt: skip
         self._llm_explainer = None
-        self._explain_thread: threading.Thread | None = None
+        self._llm_thread: threading.Thread | None = None
 
     def on_start(self) -> None:
         self.system = load_system(self.settings.system)
@@ -181,13 +185,15 @@ class ControlAgent(Agent):
         self.subscribe(keys.plant_state(self.site), PlantState, self._on_state, latest=True)
         self.spawn("decide", self._decide_loop)
         if self.cfg.explain:
-            self._explain_thread = self.spawn("explain", self._explain_loop)
+            self.spawn("explain", self._explain_loop)
+            if self.cfg.explainer == "llm":
+                self._llm_thread = self.spawn("explain-llm", self._llm_explain_loop)
 
     def on_stop(self) -> None:
         """An LLM explanation in progress outlives the base class's 5 s join (its budget is 9.7 s): wait for it, or
         the model's threads meet interpreter shutdown mid-generation (the process aborts)."""
-        if self._explain_thread is not None and self._llm_explainer is not None:
-            self._explain_thread.join(timeout=30.0)
+        if self._llm_thread is not None:
+            self._llm_thread.join(timeout=30.0)
 
     def details(self) -> dict:
         c = self.controller
@@ -197,6 +203,7 @@ class ControlAgent(Agent):
                 **{k: dict(v) if isinstance(v, dict) else v for k, v in self.tally.items()},  # a copy: the explain
                 # thread adds to the reasons while the stats are sent
                 "skipped_states": self._states.replaced, "skipped_explanations": self._explain_jobs.replaced,
+                "not_asked_of_the_llm": self._llm_jobs.replaced,
                 **({"decided_by": report()} if callable(report) else {}),
                 **({"explained_by": self.explained_by()} if self.cfg.explain and self.cfg.explainer == "llm" else {})}  # fmt: skip
 
@@ -206,12 +213,13 @@ class ControlAgent(Agent):
         n = t["llm_texts"] + t["llm_fallbacks"]
         reasons = dict(t["llm_fallback_reasons"])
         part = "its WHAT IF after the rendering" if level == "short" else "the whole text"
-        summary = (f"the LLM wrote {part} in {t['llm_texts']} of {n} {level} explanations "
-                   f"({t['llm_texts_in_target']} within {EXPLAIN_TARGET_S[level]:g} s)"
+        summary = (f"the LLM wrote {part} in {t['llm_texts']} of the {n} {level} explanations it was asked for "
+                   f"({t['llm_texts_in_target']} within {EXPLAIN_TARGET_S[level]:g} s; it is asked for the newest "
+                   f"decision when free, the others keep the rendering)"
                    + (f"; the rendering stood in for {t['llm_fallbacks']}: "
                       + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
                       if t["llm_fallbacks"] else ""))  # fmt: skip
-        return {"level": level, "explanations": n, "llm_texts": t["llm_texts"],
+        return {"level": level, "decisions": t["decisions"], "explanations": n, "llm_texts": t["llm_texts"],
                 "llm_texts_in_target": t["llm_texts_in_target"], "target_s": EXPLAIN_TARGET_S[level],
                 "llm_explain_s_max": t["llm_explain_s_max"], "fallback_reasons": reasons, "summary": summary}  # fmt: skip
 
@@ -329,7 +337,8 @@ class ControlAgent(Agent):
                            facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:
-        """Full facts and text for each decision, once the Sensor applied its step (off the critical path)."""
+        """Full facts and the rendering for each decision, once the Sensor applied its step (off the critical path);
+        with the LLM explaining, the newest rendered decision goes on to it."""
         while not self.stopping:
             job = self._explain_jobs.take(timeout_s=0.2)
             if job is None:
@@ -338,16 +347,34 @@ class ControlAgent(Agent):
             if self._applied_step < state.step:
                 self._applied.wait(timeout=0.5 * state.period_s)
             try:
-                if self.cfg.explainer == "llm" and not callable(getattr(ctrl, "explain_facts", None)):
-                    explanation = self._llm_explanation(state, obs, action, previous, decision_id, ctrl)
-                else:
-                    facts = decision_facts(ctrl, self.system, obs, action, previous)
-                    explanation = Explanation(source=self.agent_id, decision_id=decision_id, step=state.step,
-                                              controller=ctrl.name, text=explanation_text(facts), facts=facts)  # fmt: skip
+                facts = decision_facts(ctrl, self.system, obs, action, previous)
+                explanation = Explanation(source=self.agent_id, decision_id=decision_id, step=state.step,
+                                          controller=ctrl.name, text=explanation_text(facts), facts=facts)  # fmt: skip
             except Exception as exc:  # a facts bug must not stop the explanations of later decisions
                 log.exception("explaining decision %s failed", decision_id)
                 self._on_handler_error("explain", exc)
                 continue
-            self.history.add_explanation(explanation)
-            self.bus.publish(keys.explain(self.site, decision_id), explanation, block=True)
-            self.tally["explanations"] += 1
+            self._publish_explanation(explanation)
+            if self._llm_thread is not None and not callable(getattr(ctrl, "explain_facts", None)):
+                self._llm_jobs.put(job)
+
+    def _llm_explain_loop(self) -> None:
+        """The LLM's text for the newest rendered decision, published over the rendering where it earns it (a verified
+        what-if claim the rendering lacks); else the rendering stays, and the reason is counted."""
+        while not self.stopping:
+            job = self._llm_jobs.take(timeout_s=0.2)
+            if job is None:
+                continue
+            try:
+                explanation = self._llm_explanation(*job)
+            except Exception as exc:  # a failing LLM leaves the rendering; it never stops the explanations
+                log.exception("the LLM's explanation of decision %s failed", job[4])
+                self._on_handler_error("explain-llm", exc)
+                continue
+            if explanation.written_by == "llm":
+                self._publish_explanation(explanation)
+
+    def _publish_explanation(self, explanation: Explanation) -> None:
+        self.history.add_explanation(explanation)
+        self.bus.publish(keys.explain(self.site, explanation.decision_id), explanation, block=True)
+        self.tally["explanations"] += 1

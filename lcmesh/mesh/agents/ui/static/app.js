@@ -270,6 +270,9 @@ function addExplanation(x) {
     const det = el("details");
     det.append(el("summary", {}, explainLabel(x.decision_id)), el("pre", {}, x.text));
     li.append(det);
+  } else if (li) {  // the LLM's text, published over the rendering of the same decision
+    li.querySelector("details summary").textContent = explainLabel(x.decision_id);
+    li.querySelector("details pre").textContent = x.text;
   }
 }
 
