@@ -29,3 +29,27 @@ def test_the_state_view_carries_the_control_agents_decided_by(plant, lcopt5):
                               rss_bytes=1, threads=1, details={}))  # a controller that does not fall back: G36  # fmt: skip
     store.on_state(observation_to_plant_state(obs, lcopt5, source="sensor", run_id="r", step=2, period_s=0.25))
     assert "decided_by" not in json.loads(store.view_json)["controller"]
+
+
+def test_who_wrote_the_explanations_rides_on_the_state_view_and_the_decision_feed(plant, lcopt5):
+    from lcmesh.mesh.messages import Explanation
+
+    store = LiveStore(lcopt5, EventHub())
+    out = plant.reset()
+    obs = Observation(out, 291.15, np.full(lcopt5.n_blade_groups, 60e3), 0.0)
+    action = ActionModel.from_action(make_controller("g36", lcopt5).act(obs))
+    store.on_explanation(Explanation(source="control-1", decision_id="d0", step=0, controller="tree", level="short",
+                                     text="rendering\n\n## WHAT IF\n\nnear 30.1 °C", written_by="llm",
+                                     llm_part="what-if"))  # fmt: skip
+    store.on_applied(AppliedAction(source="sensor", run_id="r", step=0, time_s=0.0, decision_id="d0",
+                                   source_controller="tree", source_version="v", action=action))  # fmt: skip
+    store.on_applied(AppliedAction(source="sensor", run_id="r", step=1, time_s=15.0, decision_id="d1",
+                                   source_controller="tree", source_version="v", action=action))  # fmt: skip
+    rows = {r["decision_id"]: r for r in store.recent_decisions(5)}
+    assert rows["d0"]["explanation_written_by"] == "llm" and rows["d0"]["explanation_llm_part"] == "what-if"
+    assert rows["d1"]["explanation"] is None and rows["d1"]["explanation_written_by"] is None
+    wrote = {"level": "short", "llm_texts": 9, "summary": "the LLM wrote its WHAT IF after the rendering in 9 of 10"}
+    store.on_stats(AgentStats(source="control-1", role="control", agent_id="control-1", pid=1, host="h", uptime_s=1.0,
+                              cpu_pct=0.0, rss_bytes=1, threads=1, details={"explained_by": wrote}))  # fmt: skip
+    store.on_state(observation_to_plant_state(obs, lcopt5, source="sensor", run_id="r", step=2, period_s=0.25))
+    assert json.loads(store.view_json)["controller"]["explained_by"] == wrote

@@ -154,7 +154,7 @@ class LiveStore:
                 self.counts["fallbacks"] += 1
             self.counts["clamps"] += len(applied.clamps)
             explanation = self.explanations.get(applied.decision_id) if applied.decision_id else None
-        self.hub.publish("decision", dumps(decision_view(applied, explanation.text if explanation else None, previous)))
+        self.hub.publish("decision", dumps(decision_view(applied, explanation, previous)))
 
     def on_explanation(self, explanation: Explanation) -> None:
         with self._lock:
