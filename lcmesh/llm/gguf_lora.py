@@ -99,7 +99,11 @@ def _cached(target: Path, write) -> Path:
 
 
 def merged_gguf(folder: Path) -> Path:
-    return _cached(models_dir() / f"merged-{folder.name}-{_key(folder)}.gguf", lambda tmp: merge_to_gguf(folder, tmp))
+    from lcmesh.llm.hf.backend import adapter_quant_dtype
+
+    dtype = adapter_quant_dtype(folder)  # part of the name: the nf4 image depends on it
+    name = f"merged-{folder.name}-{_key(folder)}{'' if dtype == 'bfloat16' else '-' + dtype}.gguf"
+    return _cached(models_dir() / name, lambda tmp: merge_to_gguf(folder, tmp))
 
 
 def merge_to_gguf(folder: Path, target: Path) -> Path:
@@ -110,12 +114,12 @@ def merge_to_gguf(folder: Path, target: Path) -> Path:
     from peft import PeftModel
     from transformers import AutoModelForCausalLM
 
-    from lcmesh.llm.hf.backend import nf4_roundtrip
+    from lcmesh.llm.hf.backend import adapter_quant_dtype, nf4_roundtrip
     from lcmesh.llm.model_cache import resolve_model, shipped_gguf
 
     model = AutoModelForCausalLM.from_pretrained(resolve_model("smollm2-135m-instruct"), dtype=torch.float32)
     if trained_quant(folder) == "nf4":
-        nf4_roundtrip(model)
+        nf4_roundtrip(model, dtype=adapter_quant_dtype(folder))
     model = PeftModel.from_pretrained(model, str(folder)).merge_and_unload().eval()
     hf = {}
     for i, layer in enumerate(model.model.layers):

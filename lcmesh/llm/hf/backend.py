@@ -70,8 +70,22 @@ def adapter_base_quant(adapter: Path) -> str:
     return str(config.get("quant", "none")) if isinstance(config, dict) else "none"
 
 
-def nf4_roundtrip(model, blocksize: int = 64) -> int:
-    """Give every decoder projection the weights of its nf4 image (bfloat16, quantized, dequantized); the count.
+def adapter_quant_dtype(adapter: Path) -> str:
+    """The dtype the base's weights were in when bitsandbytes quantized them for ``adapter``'s training: the training's
+    compute dtype (the manifest's ``metrics.train.compute_dtype``, else ``config.compute_dtype``; bfloat16, the old
+    default, when neither says)."""
+    manifest = read_adapter_manifest(adapter) or {}
+    train = (manifest.get("metrics") or {}).get("train") or {}
+    config = manifest.get("config") or {}
+    for value in (train.get("compute_dtype"), config.get("compute_dtype")):
+        if value in DTYPES:
+            return str(value)
+    return "bfloat16"
+
+
+def nf4_roundtrip(model, blocksize: int = 64, dtype: str = "bfloat16") -> int:
+    """Give every decoder projection the weights of its nf4 image (in ``dtype``, the dtype the base was loaded in for
+    training: quantized, dequantized); the count.
 
     A QLoRA adapter learned its corrections against the nf4 base; merged into the original weights it
     drifts (the distilled explanations lost their structure at a handful of tokens). Merged into this
@@ -83,7 +97,7 @@ def nf4_roundtrip(model, blocksize: int = 64) -> int:
     for layer in model.model.layers:
         for module in layer.modules():
             if isinstance(module, torch.nn.Linear):
-                weight = module.weight.data.to(torch.bfloat16)
+                weight = module.weight.data.to(DTYPES[dtype])
                 packed, state = bnbf.quantize_4bit(weight, blocksize=blocksize, quant_type="nf4")
                 module.weight.data = bnbf.dequantize_4bit(packed, state).to(module.weight.dtype)
                 n += 1
@@ -110,7 +124,7 @@ class HfBackend:
         model = AutoModelForCausalLM.from_pretrained(self.model_dir, dtype=torch.float32)
         self.base_quant = adapter_base_quant(self.adapter) if self.adapter is not None else "none"
         if self.base_quant == "nf4":
-            nf4_roundtrip(model)
+            nf4_roundtrip(model, dtype=adapter_quant_dtype(self.adapter))
         if adapter is not None:
             from peft import PeftModel
 
