@@ -495,7 +495,10 @@ def _render_whole_days(wd: dict) -> list[str]:
     for name, days in wd["days"].items():
         lines.append(f"| {name} | {wd['mean_d_blade'][name]:.2f} | "
                      + " | ".join(f"{days[d]['d_blade_pct']:.2f}" for d in labels) + " |")  # fmt: skip
-    lines += ["", f"Gap to the teacher: {wd['gap_points']:+.2f} points (target: within 1). " + _llm_line(wd["llm_stats"])]
+    short_by = {d: wd["days"]["ppo"][d]["d_blade_pct"] - wd["days"]["llm"][d]["d_blade_pct"] for d in labels}
+    worst = max(short_by, key=short_by.get)
+    lines += ["", f"Gap to the teacher: {wd['gap_points']:+.2f} points over the days (target: within 1; positive: the "
+              f"LLM below); the day furthest below: {worst}, {short_by[worst]:+.2f}. " + _llm_line(wd["llm_stats"])]
     if wd.get("run"):  # measured in runs of their own (`--sections days`)
         run = wd["run"]
         lines.append(f"Measured by `lcmesh bench llm --sections days --days {','.join(labels)} --whole-day-period "
@@ -508,6 +511,6 @@ def _render_whole_days(wd: dict) -> list[str]:
     wall_h = np.mean([llm[d]["wall_s"] for d in labels]) / 3600
     lines.append(f"Cooling energy over the days: {cooling['llm']:,.0f} kWh for the LLM against {cooling['ppo']:,.0f} "
                  f"for the teacher ({100 * (cooling['llm'] / cooling['ppo'] - 1):+.1f} %). A day took {wall_h:.2f} h "
-                 f"of one core for the LLM." + (f" Not run: {', '.join(missing)} ({len(labels)} of {len(TEST_DAYS)} "
+                 f"of wall time for the LLM (one thread; on shared cores, so the decision times above are an upper bound)." + (f" Not run: {', '.join(missing)} ({len(labels)} of {len(TEST_DAYS)} "
                                                  f"test days measured)." if missing else ""))  # fmt: skip
     return lines
