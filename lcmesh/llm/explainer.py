@@ -54,7 +54,7 @@ TIME_BUDGET_S = {"short": 2.85, "detailed": 9.7, "very_detailed": 20.0}  # the L
 # from a compact prompt (the decision's supply setpoint and the hottest branch's what-if facts, about 120 tokens)
 SHORT_WHATIF_FACTS = ("cabinet", "supply_setpoint", "supply_setpoint_change")
 SHORT_WHATIF_CLAIMS = ("hottest_branch_expected", "hottest_branch_if_held")
-SHORT_WHATIF_TOKENS = 48
+SHORT_WHATIF_TOKENS = 64  # the trained sentences end in 40-47 tokens; room, so none is cut short
 LEVEL_WORDS = {"short": "short", "detailed": "detailed", "very_detailed": "very detailed"}
 
 
