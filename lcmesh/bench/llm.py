@@ -30,7 +30,6 @@ EVAL_TRACE = "frontier-2024-04-07"
 EVAL_SCENARIO = "frontier"
 HELDOUT_TRACE = "synthetic:1003@design-day"  # the teacher's decisions on a day no model trained on
 LOOP_CONTROLLERS = ("g36", "rule", "ppo", "tree", "readable", "llm")
-LEVEL_TARGET_S = {"short": 3.0, "detailed": 10.0}  # an explanation's whole pipeline, as the issue's targets count it
 WARMUP_STEPS = 120  # 30 min run by each controller itself before its scored window: stateful ones (G36) settle
 
 
@@ -155,7 +154,7 @@ def _eval_day_decisions(cfg: BenchLlmConfig, system, n: int):
 
 
 def _explanations(cfg: BenchLlmConfig, system, backend, say, short_backend=None) -> dict:
-    from lcmesh.llm.explainer import LlmExplainer
+    from lcmesh.llm.explainer import TARGET_S, LlmExplainer
 
     decisions = _eval_day_decisions(cfg, system, cfg.explain_per_level)
     explainer = LlmExplainer(system, backend, short_backend=short_backend)  # as make_explainer builds it for the mesh
@@ -181,7 +180,7 @@ def _explanations(cfg: BenchLlmConfig, system, backend, say, short_backend=None)
             "llm_seconds_median": statistics.median(row["llm_seconds"] for row in rows),
             "llm_used": sum(row["source"] == "llm" for row in rows),
             "llm_part": sorted({row["llm_part"] for row in rows}),
-            "llm_with_whatif_claim_in_budget": sum(bool(row["whatif_claims"]) and row["seconds"] <= LEVEL_TARGET_S[level]
+            "llm_with_whatif_claim_in_budget": sum(bool(row["whatif_claims"]) and row["seconds"] <= TARGET_S[level]
                                                    for row in rows),  # fmt: skip
             "llm_text_as_rendered": sum(row["as_rendered"] for row in rows),
             "llm_with_whatif_claim": sum(bool(row["whatif_claims"]) for row in rows),
@@ -350,6 +349,8 @@ def _draft_note(e: dict) -> str:
 
 def render_llm(r: dict) -> str:
     """The BENCHMARKS.md section (the parts that were run)."""
+    from lcmesh.llm.explainer import TARGET_S
+
     m, load, c = r["machine"], r["load"], r["config"]
 
     def f(x, spec=".2f"):
@@ -404,7 +405,7 @@ def render_llm(r: dict) -> str:
             if "llm_with_whatif_claim" in e:
                 part = " (the rendering, then the LLM's WHAT IF)" if e.get("llm_part") == ["what-if"] else ""
                 in_budget = e.get("llm_with_whatif_claim_in_budget")
-                within = "" if in_budget is None else f", and within {LEVEL_TARGET_S[level]:g} s"
+                within = "" if in_budget is None else f", and within {TARGET_S[level]:g} s"
                 counted = "" if in_budget is None else f", {in_budget} within it"
                 lines.append(f"| {level}{part}: explanations with a verified what-if claim the rendering lacks (of "
                              f"{e['n']}; claims {e['whatif_claims'] or 'none'}){within} | {e['llm_with_whatif_claim']} "

@@ -49,6 +49,8 @@ MAX_NEW_TOKENS = {"short": 1024, "detailed": 1536, "very_detailed": 2560}
 WHATIF_LEVELS = ("detailed", "very_detailed")
 WHATIF_HEADING = "## WHAT IF"
 TIME_BUDGET_S = {"short": 2.85, "detailed": 9.7, "very_detailed": 20.0}  # the LLM's share; then the renderer
+# the issue's targets for a whole explanation (facts, rendering, LLM, judge), as the mesh and the benchmark count them
+TARGET_S = {"short": 3.0, "detailed": 10.0}
 # The short what-if: a short text has no time for the whole text and its WHAT IF section, so where a short-level
 # backend is given (the ``explain-short`` adapter on llama.cpp) the LLM writes only that section, after the rendering,
 # from a compact prompt (the decision's supply setpoint and the hottest branch's what-if facts, about 120 tokens)
@@ -126,9 +128,13 @@ def whatif_claims(text: str, whatif_facts: list[Fact], rendered: str) -> list[st
 
 def explain_messages(facts: list[Fact], level: str) -> list[dict[str, str]]:
     """Chat messages asking for an explanation of the decision behind ``facts`` at ``level``."""
+    return _facts_messages(facts, LEVEL_WORDS[level], LEVEL_SECTIONS[level])
+
+
+def _facts_messages(facts: list[Fact], level_words: str, headings) -> list[dict[str, str]]:
     system, user = load_template("controller_explain")
     cabinet = next((f.display for f in facts if f.name == "cabinet"), "?")
-    values = {"level": LEVEL_WORDS[level], "cabinet": cabinet, "headings": ", ".join(LEVEL_SECTIONS[level]),
+    values = {"level": level_words, "cabinet": cabinet, "headings": ", ".join(headings),
               "facts": "\n".join(f"{f.name} = {f.display}" for f in facts)}  # fmt: skip
     return [{"role": "system", "content": Template(system).substitute(values)},
             {"role": "user", "content": Template(user).substitute(values)}]  # fmt: skip
@@ -141,12 +147,7 @@ def short_whatif_facts(facts: list[Fact], whatif: list[Fact]) -> list[Fact]:
 
 def whatif_messages(prompt_facts: list[Fact]) -> list[dict[str, str]]:
     """Chat messages asking for the WHAT IF section alone (the short level's LLM part) from the compact facts."""
-    system, user = load_template("controller_explain")
-    cabinet = next((f.display for f in prompt_facts if f.name == "cabinet"), "?")
-    values = {"level": "what if", "cabinet": cabinet, "headings": "WHAT IF",
-              "facts": "\n".join(f"{f.name} = {f.display}" for f in prompt_facts)}  # fmt: skip
-    return [{"role": "system", "content": Template(system).substitute(values)},
-            {"role": "user", "content": Template(user).substitute(values)}]  # fmt: skip
+    return _facts_messages(prompt_facts, "what if", ("WHAT IF",))
 
 
 def short_backend_for(settings=None) -> LlmBackend | None:

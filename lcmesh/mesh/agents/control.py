@@ -34,6 +34,7 @@ from collections.abc import Collection
 
 import numpy as np
 
+from lcmesh.llm.explainer import TARGET_S
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent, LatestSlot
 from lcmesh.mesh.history import HistoryWriter
@@ -47,8 +48,6 @@ from lcmesh.twin.controllers import Controller, ControllerError, Observation, ma
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription, load_system
 
-# the issue's targets for an explanation, whole pipeline (facts, rendering, LLM, judge): short 3 s, detailed 10 s
-EXPLAIN_TARGET_S = {"short": 3.0, "detailed": 10.0}
 log = logging.getLogger("lcmesh.mesh.agents.control")
 FALLBACK_CONTROLLER = "g36"
 _K = 273.15
@@ -214,13 +213,13 @@ class ControlAgent(Agent):
         reasons = dict(t["llm_fallback_reasons"])
         part = "its WHAT IF after the rendering" if level == "short" else "the whole text"
         summary = (f"the LLM wrote {part} in {t['llm_texts']} of the {n} {level} explanations it was asked for "
-                   f"({t['llm_texts_in_target']} within {EXPLAIN_TARGET_S[level]:g} s; it is asked for the newest "
+                   f"({t['llm_texts_in_target']} within {TARGET_S[level]:g} s; it is asked for the newest "
                    f"decision when free, the others keep the rendering)"
                    + (f"; the rendering stood in for {t['llm_fallbacks']}: "
                       + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
                       if t["llm_fallbacks"] else ""))  # fmt: skip
         return {"level": level, "decisions": t["decisions"], "explanations": n, "llm_texts": t["llm_texts"],
-                "llm_texts_in_target": t["llm_texts_in_target"], "target_s": EXPLAIN_TARGET_S[level],
+                "llm_texts_in_target": t["llm_texts_in_target"], "target_s": TARGET_S[level],
                 "llm_explain_s_max": t["llm_explain_s_max"], "fallback_reasons": reasons, "summary": summary}  # fmt: skip
 
     def _on_config(self, old: MeshConfig, new: MeshConfig) -> None:
@@ -307,7 +306,7 @@ class ControlAgent(Agent):
             if self.cfg.explain:
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
-    def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation:
+    def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation | None:
         """The local LLM's explanation (``explain_level``) of the hottest cabinet's decision where it adds a verified
         what-if claim the rendering lacks; the rendering where it fails the judge or adds none (said in
         ``why_renderer``). Short: the rendering and the LLM's WHAT IF section (docs/llm.md)."""
@@ -326,14 +325,15 @@ class ControlAgent(Agent):
             text, why = r.rendered, "no verified claim the rendering lacks"
         by_llm = r.source == "llm" and not why
         self.tally["llm_texts" if by_llm else "llm_fallbacks"] += 1
-        self.tally["llm_texts_in_target"] += by_llm and seconds <= EXPLAIN_TARGET_S[level]
+        self.tally["llm_texts_in_target"] += by_llm and seconds <= TARGET_S[level]
         self.tally["llm_explain_s_max"] = round(max(self.tally["llm_explain_s_max"], seconds), 3)
         if why:
             reasons = self.tally["llm_fallback_reasons"]
             reasons[why] = reasons.get(why, 0) + 1
+        if not by_llm:
+            return None
         return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
-                           level=level, text=text, written_by="llm" if by_llm else "renderer", why_renderer=why,
-                           llm_part=r.llm_part if by_llm else "",
+                           level=level, text=text, written_by="llm", llm_part=r.llm_part,
                            facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:
@@ -371,7 +371,7 @@ class ControlAgent(Agent):
                 log.exception("the LLM's explanation of decision %s failed", job[4])
                 self._on_handler_error("explain-llm", exc)
                 continue
-            if explanation.written_by == "llm":
+            if explanation is not None:
                 self._publish_explanation(explanation)
 
     def _publish_explanation(self, explanation: Explanation) -> None:
