@@ -4,7 +4,8 @@ It loads the page from the UI agent of the real test mesh at common screen sizes
 chat box on screen without scrolling, asks it a question and sees the answer, reads the "Now"
 panel (cooling PUE, tower approach, the wet bulb's label) and each CDU's measured supply beside
 its setpoint, checks the power axis never goes below 0 kW, holds the plant and sees the decision
-feed count the unchanged steps on one row instead of adding a row per step, switches the
+feed count the unchanged steps on one row instead of adding a row per step (and show the LLM's
+text of a step the row joined, labelled with its step), switches the
 controller with the token, and takes a screenshot (to ``$LCMESH_UI_SCREENSHOT`` when set, which
 is how docs/img/ui.png is made). Every wait polls the page; nothing is timed. Skipped with the
 reason when Chromium or chromedriver is absent.
@@ -225,6 +226,29 @@ def test_the_decision_feed_says_what_changed_and_counts_unchanged_steps(browser,
         assert b.js(f"return {top}.querySelector('.change').textContent") == "no change on these steps"
         assert b.js("const li = [...document.querySelectorAll('#decisions li.unchanged')]; return li.every((e, i) => "
                     "i === 0 || e.previousElementSibling !== li[i - 1] || e.dataset.key !== li[i - 1].dataset.key)")
+
+        # A joined row of a controller's unchanged steps (the page's own functions, fed events as the stream sends
+        # them, in one script so that no live event comes between): the LLM's text for an earlier step shows in
+        # the row, labelled with its step, and the renderings of later steps that join the row do not hide it.
+        def decision(i):
+            return {"decision_id": f"joined-{i}", "step": 900000 + i, "source_controller": "tree",
+                    "source_version": "test", "fallback": False, "fallback_reason": None, "clamps": [], "changes": []}
+
+        def rendering(i):
+            return {"decision_id": f"joined-{i}", "text": f"rendering {i}", "written_by": "renderer", "level": "short"}
+
+        shown = "(() => { const li = document.querySelector('#decisions li[data-members~=\"joined-1\"]'); " \
+                "return [li.dataset.count, li.querySelector('summary').textContent, li.querySelector('pre').textContent]; })()"
+        by_llm = {"decision_id": "joined-1", "text": "## WHAT IF\nchecked", "written_by": "llm", "llm_part": "what-if"}
+        add = [f"addDecision({json.dumps(decision(i))}); addExplanation({json.dumps(rendering(i))});" for i in range(4)]
+        seen = b.js("".join(add[:3]) + f"const a = {shown}; addExplanation({json.dumps(by_llm)}); const b = {shown}; "
+                    + add[3] + f"return [a, b, {shown}];")  # fmt: skip
+        want = "explanation of step 900001 (rendered from the facts; WHAT IF written by the LLM, checked)"
+        assert seen[0] == ["3", "explanation (rendered from the facts)", "rendering 2"]
+        assert seen[1] == ["3", want, "## WHAT IF\nchecked"]
+        assert seen[2] == ["4", want, "## WHAT IF\nchecked"], "a later step's rendering hides the LLM's text"
+        stray = {**by_llm, "decision_id": "in-no-row"}
+        assert b.js(f"addExplanation({json.dumps(stray)}); return 1") == 1, "a text for a row no longer shown"
 
         b.js("document.getElementById('controller-select').value = 'g36'; "
              "document.getElementById('mode-select').value = 'auto';")  # fmt: skip

@@ -191,11 +191,16 @@ const explanations = new Map();
 const writtenBy = new Map();  // decision id -> "llm" | "renderer": who wrote the explanation's text
 const whyRenderer = new Map();  // decision id -> why the rendering stood in for the LLM's text
 const llmPart = new Map();  // decision id -> "what-if": the rendering, then the LLM's checked WHAT IF section
-const explainLabel = (id) => (writtenBy.get(id) === "llm" ? (llmPart.get(id) === "what-if"
-    ? "explanation (rendered from the facts; WHAT IF written by the LLM, checked)"
-    : "explanation (written by the LLM, checked)")
-  : whyRenderer.get(id) ? `explanation (rendered from the facts: ${whyRenderer.get(id)})`
-  : writtenBy.has(id) ? "explanation (rendered from the facts)" : "explanation");
+const stepOf = new Map();  // decision id -> step, to say which step of a joined row a text explains
+// "explanation (who wrote it)"; "explanation of step N (...)" where the text is another step's of a joined row
+function explainLabel(id, ofStep) {
+  const head = ofStep === undefined ? "explanation" : `explanation of step ${ofStep}`;
+  return writtenBy.get(id) === "llm" ? (llmPart.get(id) === "what-if"
+    ? `${head} (rendered from the facts; WHAT IF written by the LLM, checked)`
+    : `${head} (written by the LLM, checked)`)
+    : whyRenderer.get(id) ? `${head} (rendered from the facts: ${whyRenderer.get(id)})`
+    : writtenBy.has(id) ? `${head} (rendered from the facts)` : head;
+}
 
 // A decision that moved nothing the page shows (`changes` is [], not null: null means no decision before it known)
 const unchanged = (d) => Array.isArray(d.changes) && d.changes.length === 0;
@@ -204,9 +209,12 @@ const decisionKey = (d) => JSON.stringify([d.source_controller, d.source_version
   (d.clamps || []).map((c) => [c.field, c.index])]);
 
 // One row: the step (or the steps it stands for, with their count), what changed, source, clamps, explanation.
-function decisionItem(d, count = 1, firstStep = d.step) {
+// A joined row's members are the decisions it stands for: where the newest has only the rendering and an earlier
+// one has the LLM's text, the row shows that text, labelled with its step.
+function decisionItem(d, count = 1, firstStep = d.step, members = [d.decision_id]) {
   const li = el("li", { class: unchanged(d) ? "unchanged" : "changed" });
-  Object.assign(li.dataset, { decision: d.decision_id || "", key: decisionKey(d), count, first: firstStep });
+  Object.assign(li.dataset, { decision: d.decision_id || "", key: decisionKey(d), count, first: firstStep,
+    members: members.filter(Boolean).join(" ") });
   const head = el("div");
   head.append(el("span", { class: "tag" }, count > 1 ? `steps ${firstStep}–${d.step}` : `step ${d.step}`));
   if (count > 1) head.append(el("span", { class: "tag count" }, `×${count}`));
@@ -224,15 +232,28 @@ function decisionItem(d, count = 1, firstStep = d.step) {
     const what = d.changes.length ? d.changes.join(", ") : count > 1 ? "no change on these steps" : "no change";
     li.append(el("div", { class: d.changes.length ? "change" : "change muted" }, what));
   }
-  const text = d.explanation || explanations.get(d.decision_id);
   if (d.explanation_written_by) rememberWriter({ decision_id: d.decision_id, written_by: d.explanation_written_by,
     why_renderer: d.explanation_why_renderer, llm_part: d.explanation_llm_part });
-  if (text) {
-    const det = el("details");
-    det.append(el("summary", {}, explainLabel(d.decision_id)), el("pre", {}, text));
+  let shown = d.decision_id;
+  if (writtenBy.get(shown) !== "llm") {
+    shown = [...members].reverse().find((id) => writtenBy.get(id) === "llm" && explanations.has(id)) || shown;
+  }
+  const text = shown === d.decision_id ? d.explanation || explanations.get(shown) : explanations.get(shown);
+  if (text) showExplanation(li, shown, text);
+  return li;
+}
+
+// Put a decision's text in its row (a <details> made on first use), labelled with who wrote it
+function showExplanation(li, id, text) {
+  let det = li.querySelector("details");
+  if (!det) {
+    det = el("details");
+    det.append(el("summary"), el("pre"));
     li.append(det);
   }
-  return li;
+  det.querySelector("summary").textContent = explainLabel(id, id === li.dataset.decision ? undefined : stepOf.get(id));
+  det.querySelector("pre").textContent = text;
+  li.dataset.shown = id;
 }
 
 // Newest on top; an unchanged step like the unchanged row on top joins that row (its count and step range)
@@ -240,8 +261,13 @@ function decisionItem(d, count = 1, firstStep = d.step) {
 function addDecision(d) {
   const list = $("decisions");
   const top = list.firstElementChild;
+  if (d.decision_id) {
+    stepOf.set(d.decision_id, d.step);
+    if (stepOf.size > 400) stepOf.delete(stepOf.keys().next().value);
+  }
   if (unchanged(d) && top && top.classList.contains("unchanged") && top.dataset.key === decisionKey(d)) {
-    top.replaceWith(decisionItem(d, Number(top.dataset.count) + 1, Number(top.dataset.first)));
+    const members = [...top.dataset.members.split(" ").filter(Boolean), d.decision_id].slice(-200);
+    top.replaceWith(decisionItem(d, Number(top.dataset.count) + 1, Number(top.dataset.first), members));
     return;
   }
   list.prepend(decisionItem(d));
@@ -265,15 +291,18 @@ function addExplanation(x) {
     whyRenderer.delete(oldest);
     llmPart.delete(oldest);
   }
-  const li = document.querySelector(`#decisions li[data-decision="${CSS.escape(x.decision_id)}"]`);
-  if (li && !li.querySelector("details")) {
-    const det = el("details");
-    det.append(el("summary", {}, explainLabel(x.decision_id)), el("pre", {}, x.text));
-    li.append(det);
-  } else if (li) {  // the LLM's text, published over the rendering of the same decision
-    li.querySelector("details summary").textContent = explainLabel(x.decision_id);
-    li.querySelector("details pre").textContent = x.text;
+  // the row that stands for this decision: its own, or a joined row of unchanged steps it is a member of
+  const li = document.querySelector(`#decisions li[data-members~="${CSS.escape(x.decision_id)}"]`);
+  if (!li) return;
+  const own = li.dataset.decision === x.decision_id;
+  const shownByLlm = li.dataset.shown !== undefined && writtenBy.get(li.dataset.shown) === "llm";
+  // the LLM's text goes over a rendering, or over an earlier step's LLM text in a joined row, but not over the
+  // row's own LLM text; a rendering goes only in its own row, and not over another step's LLM text
+  const rowOwnByLlm = shownByLlm && li.dataset.shown === li.dataset.decision;
+  if (x.written_by === "llm" ? !own && rowOwnByLlm : !own || (shownByLlm && li.dataset.shown !== x.decision_id)) {
+    return;
   }
+  showExplanation(li, x.decision_id, x.text);
 }
 
 const alerts = new Map();
