@@ -306,10 +306,11 @@ class ControlAgent(Agent):
             if self.cfg.explain:
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
-    def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl) -> Explanation | None:
+    def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl):
         """The local LLM's explanation (``explain_level``) of the hottest cabinet's decision where it adds a verified
         what-if claim the rendering lacks; the rendering where it fails the judge or adds none (said in
-        ``why_renderer``). Short: the rendering and the LLM's WHAT IF section (docs/llm.md)."""
+        ``why_renderer``). Short: the rendering and the LLM's WHAT IF section (docs/llm.md). Returns the message to
+        publish (None where the rendering stands), the seconds it took and why the rendering stood in."""
         from lcmesh.llm.explainer import make_explainer
 
         if self._llm_explainer is None:
@@ -323,18 +324,20 @@ class ControlAgent(Agent):
         text, why = r.text, r.fallback_reason or ""
         if r.source == "llm" and not r.whatif_claims:  # it passed the judge, but says nothing the rendering lacks
             text, why = r.rendered, "no verified claim the rendering lacks"
-        by_llm = r.source == "llm" and not why
+        if r.source != "llm" or why:
+            return None, seconds, why
+        return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
+                           level=level, text=text, written_by="llm", llm_part=r.llm_part,
+                           facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts]), seconds, why  # fmt: skip
+
+    def _count_llm_explanation(self, by_llm: bool, seconds: float, why: str) -> None:
+        """Count an LLM explanation once it is published (or the rendering stood in): what ``explained_by`` says."""
         self.tally["llm_texts" if by_llm else "llm_fallbacks"] += 1
-        self.tally["llm_texts_in_target"] += by_llm and seconds <= TARGET_S[level]
+        self.tally["llm_texts_in_target"] += by_llm and seconds <= TARGET_S[self.cfg.explain_level]
         self.tally["llm_explain_s_max"] = round(max(self.tally["llm_explain_s_max"], seconds), 3)
         if why:
             reasons = self.tally["llm_fallback_reasons"]
             reasons[why] = reasons.get(why, 0) + 1
-        if not by_llm:
-            return None
-        return Explanation(source=self.agent_id, decision_id=decision_id, step=state.step, controller=ctrl.name,
-                           level=level, text=text, written_by="llm", llm_part=r.llm_part,
-                           facts=[FactModel.model_validate(_fact_dict(f)) for f in r.facts])  # fmt: skip
 
     def _explain_loop(self) -> None:
         """Full facts and the rendering for each decision, once the Sensor applied its step (off the critical path);
@@ -366,13 +369,14 @@ class ControlAgent(Agent):
             if job is None:
                 continue
             try:
-                explanation = self._llm_explanation(*job)
+                explanation, seconds, why = self._llm_explanation(*job)
             except Exception as exc:  # a failing LLM leaves the rendering; it never stops the explanations
                 log.exception("the LLM's explanation of decision %s failed", job[4])
                 self._on_handler_error("explain-llm", exc)
                 continue
             if explanation is not None:
-                self._publish_explanation(explanation)
+                self._publish_explanation(explanation)  # in history before it is counted: the count never runs ahead
+            self._count_llm_explanation(explanation is not None, seconds, why)
 
     def _publish_explanation(self, explanation: Explanation) -> None:
         self.history.add_explanation(explanation)

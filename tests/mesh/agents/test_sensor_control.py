@@ -253,9 +253,7 @@ def test_the_llm_explainer_publishes_a_judged_text_over_the_rendering(start_agen
     assert wait_until(lambda: control.tally["llm_texts"] + control.tally["llm_fallbacks"] >= 2, 120)
     published = control.tally["llm_texts"]  # read before the history and the stats: one may finish in between
     history = HistoryReader(mesh_settings.history_file)
-    # the count goes up just before the text is written: wait for the counted texts to reach history
-    assert wait_until(lambda: sum(e["written_by"] == "llm" for e in history.explanations(limit=1000)) >= published, 30)
-    rows = history.explanations(limit=1000)
+    rows = history.explanations(limit=1000)  # a text is in history before it is counted
     renderings = [e for e in rows if e["written_by"] == "renderer"]
     by_llm = [e for e in rows if e["written_by"] == "llm"]
     assert len(renderings) >= 2 and all("## WHAT IF" not in e["text"] for e in renderings)
