@@ -204,7 +204,19 @@ class ControlAgent(Agent):
                 "skipped_states": self._states.replaced, "skipped_explanations": self._explain_jobs.replaced,
                 "not_asked_of_the_llm": self._llm_jobs.replaced,
                 **({"decided_by": report()} if callable(report) else {}),
-                **({"explained_by": self.explained_by()} if self.cfg.explain and self.cfg.explainer == "llm" else {})}  # fmt: skip
+                **({"explained_by": self.explained_by()} if self.cfg.explain and self.cfg.explainer == "llm" else {}),
+                "busy_with": self.busy_with()}  # fmt: skip
+
+    def busy_with(self) -> list[str]:
+        """The local LLM's work in this agent, for the Agent Monitor to name beside a high CPU share."""
+        work = []
+        if getattr(self.controller, "name", None) == "llm":
+            every = getattr(self.controller, "period_steps", None)
+            work.append(f"the local LLM decides{f' every {every} plant steps' if every else ''} (controller llm)")
+        if self.cfg.explain and self.cfg.explainer == "llm":
+            work.append(f"the local LLM writes {self.cfg.explain_level} explanations on a thread of its own "
+                        "(control.explainer = llm; renderer frees the core)")  # fmt: skip
+        return work
 
     def explained_by(self) -> dict:
         """Who wrote the published explanations with the LLM explaining: its share, the renderer's reasons, in a line."""

@@ -19,9 +19,12 @@ from lcmesh.mesh.messages import AgentHealth, AgentStats, AppliedAction, Monitor
 FALLBACK_WINDOW_S = 60.0
 
 
-def recommend(agents: list[AgentHealth], fallback_steps: int, period_s: float | None, cfg) -> list[Recommendation]:
-    """Plain-language advice from the agents' health and the recent fallback steps."""
+def recommend(agents: list[AgentHealth], fallback_steps: int, period_s: float | None, cfg,
+              busy_with: dict[str, list[str]] | None = None) -> list[Recommendation]:  # fmt: skip
+    """Plain-language advice from the agents' health and the recent fallback steps. ``busy_with``: what an agent
+    says keeps it busy (its stats' ``details["busy_with"]``), named beside a high CPU share."""
     recs: list[Recommendation] = []
+    busy_with = busy_with or {}
 
     def add(severity: str, agent_id: str | None, text: str) -> None:
         recs.append(Recommendation(severity=severity, agent_id=agent_id, text=text))
@@ -38,7 +41,9 @@ def recommend(agents: list[AgentHealth], fallback_steps: int, period_s: float | 
             add("warning", who, f"{who} needs {a.latency_ms_p99:.1f} ms (p99) per message, over half the "
                 f"{period_s * 1e3:.0f} ms control period: lower the speed factor or choose a faster controller")
         if a.cpu_pct is not None and a.cpu_pct > cfg.cpu_high_pct:
-            add("warning", who, f"{who} uses {a.cpu_pct:.0f} % CPU; give it its own core or host")
+            why = "; ".join(busy_with.get(who) or [])
+            add("warning", who, f"{who} uses {a.cpu_pct:.0f} % CPU{f' ({why})' if why else ''}; give it its own core "
+                "or host")  # fmt: skip
         if a.rss_bytes is not None and a.rss_bytes > cfg.rss_high_bytes:
             add("warning", who, f"{who} holds {a.rss_bytes / 2**20:.0f} MiB of memory")
         if a.invalid_total:
@@ -49,6 +54,12 @@ def recommend(agents: list[AgentHealth], fallback_steps: int, period_s: float | 
         add("warning", None, f"{fallback_steps} step(s) in the last minute ran on a fallback (hold or G36): "
             "proposals are late or rejected")  # fmt: skip
     return recs
+
+
+def _said_busy_with(stats: AgentStats) -> list[str]:
+    """An agent's ``details["busy_with"]``: a list of short strings, anything else ignored."""
+    said = stats.details.get("busy_with")
+    return [x[:200] for x in said if isinstance(x, str)][:4] if isinstance(said, list) else []
 
 
 class MonitorAgent(Agent):
@@ -120,9 +131,10 @@ class MonitorAgent(Agent):
                 self._fallbacks.popleft()
             fallbacks = len(self._fallbacks)
             sensor = next((s for _, s in self._stats.values() if s.role == "sensor"), None)
+            busy_with = {a: _said_busy_with(s) for a, (_, s) in self._stats.items()}
         period = sensor.details.get("period_s") if sensor is not None else None
         return MonitorReport(source=self.agent_id, agents=agents, fallback_steps_last_minute=fallbacks,
-                             recommendations=recommend(agents, fallbacks, period, self.cfg))  # fmt: skip
+                             recommendations=recommend(agents, fallbacks, period, self.cfg, busy_with))  # fmt: skip
 
     def _loop(self) -> None:
         key = keys.monitor_report(self.site)

@@ -7,10 +7,11 @@ import pytest
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.control import ControlAgent
 from lcmesh.mesh.agents.maintenance import MaintenanceAgent
-from lcmesh.mesh.agents.monitor import MonitorAgent
+from lcmesh.mesh.agents.monitor import MonitorAgent, _said_busy_with, recommend
 from lcmesh.mesh.agents.sensor import SensorAgent
 from lcmesh.mesh.history import HistoryReader
-from lcmesh.mesh.messages import Alert, CommandReply, FaultRequest, MonitorReport
+from lcmesh.mesh.messages import AgentHealth, AgentStats, Alert, CommandReply, FaultRequest, MonitorReport
+from lcmesh.mesh.settings import MonitorConfig
 from tests.mesh.conftest import wait_until
 
 pytest.importorskip("lcmesh.mesh.tools.maintenance")
@@ -64,3 +65,19 @@ def test_monitor_reports_every_agent_and_notices_one_going(start_agent, client, 
     late = []
     client.subscribe(keys.monitor_report(site), MonitorReport, late.append, latest=True)
     assert late and monitor.last_report is not None
+
+
+def test_a_high_cpu_share_names_what_the_agent_says_keeps_it_busy():
+    """The CPU advice names the agent's own account of its work (the Control agent's local LLM), and a malformed
+    account from the bus is ignored, not trusted."""
+    cfg = MonitorConfig()
+    control = AgentHealth(agent_id="control", role="control", alive=True, cpu_pct=cfg.cpu_high_pct + 5)
+    said = ["the local LLM writes short explanations on a thread of its own"]
+    (rec,) = recommend([control], 0, 0.25, cfg, {"control": said})
+    assert rec.severity == "warning" and f"({said[0]})" in rec.text and rec.text.endswith("its own core or host")
+    (bare,) = recommend([control], 0, 0.25, cfg)
+    assert "()" not in bare.text and "% CPU; give it" in bare.text
+    stats = {"source": "control", "role": "control", "agent_id": "control", "pid": 1, "host": "h", "uptime_s": 1.0,
+             "cpu_pct": 99.0, "rss_bytes": 1, "threads": 1}  # fmt: skip
+    assert _said_busy_with(AgentStats(**stats, details={"busy_with": "not a list"})) == []
+    assert _said_busy_with(AgentStats(**stats, details={"busy_with": [3, "x" * 500]})) == ["x" * 200]

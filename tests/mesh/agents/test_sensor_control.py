@@ -268,6 +268,7 @@ def test_the_llm_explainer_publishes_a_judged_text_over_the_rendering(start_agen
     assert published <= stats["llm_with_whatif_claim"] <= published + 1, (control.tally, stats)
     said = control.details()["explained_by"]
     assert said["level"] == level and said["llm_texts"] >= published and "asked for" in said["summary"]
+    assert any(f"writes {level} explanations" in w for w in control.details()["busy_with"]), "for the Agent Monitor"
 
 
 def test_the_llm_controller_runs_paced_in_the_mesh_and_says_who_decided(start_agent, mesh_settings):
