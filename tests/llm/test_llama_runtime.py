@@ -135,8 +135,8 @@ def test_a_stale_estimate_that_refuses_is_measured_again(llama_base):
 
     view = llama_base.with_clock(clock)
     view.pass_cost = PassCost(0.01, measured_at=now[0])
-    facts = " ".join(f"cabinet {i} supply {20 + i % 7}.5 C, dp {25 + i % 5} psi;" for i in range(60))
-    ask = [[{"role": "user", "content": f"{facts} Say hello."}]]  # about 900 tokens: 9 s at 10 ms a token
+    facts = " ".join(f"cabinet {i} supply {20 + i % 7}.5 C, dp {25 + i % 5} psi;" for i in range(35))
+    ask = [[{"role": "user", "content": f"{facts} Say hello."}]]  # about 530 tokens: 5.3 s at 10 ms a token
     fresh = view.chat(ask, max_new_tokens=4, time_budget_s=3.0)[0]
     assert fresh.finish_reason == "timeout" and fresh.new_tokens == 0
     now[0] += REFRESH_S + 1
