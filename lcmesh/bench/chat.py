@@ -299,8 +299,8 @@ def markdown(report: dict[str, Any]) -> str:
                   + ", ".join(f"{t} {v:.0%}" for t, v in test["by_tag"].items()) + "."]
     lines += ["", f"Machine: {m.get('cpu', '?')}, {m.get('logical_cpus', '?')} logical CPUs; commit "
               f"{m.get('commit', '?')}, {m.get('date', '?')}."]
-    for part, run in report.get("parts_measured", {}).items():  # parts re-measured at a later commit than the rest
-        lines.append(f"Part {part}: {run}.")
+    for part, run in report.get("parts_measured", {}).items():  # "Parts test and b-test": when, if not the above
+        lines.append(f"{part}: {run}.")
     return "\n".join(lines)
 
 

@@ -13,7 +13,7 @@ def _part(correct: float) -> dict:
 def test_a_part_measured_later_names_its_run_under_the_table():
     report = {"command": "lcmesh bench chat", "site": "a site", "machine": {"cpu": "cpu", "commit": "abc"},
               "planners": {"llm": {"dev": _part(0.7), "test": _part(0.8)}},
-              "parts_measured": {"test": "again at commit def"}}  # fmt: skip
+              "parts_measured": {"Part test": "again at commit def"}}  # fmt: skip
     text = markdown(report)
     assert "| llm | test | 10 | 90.0% | 80.0% | - | 1 | 0 | 2 | 0.50 | 1.50 |" in text
     assert text.splitlines()[-1] == "Part test: again at commit def."
