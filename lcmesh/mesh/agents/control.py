@@ -318,7 +318,9 @@ class ControlAgent(Agent):
             if self.cfg.explain:
                 self._explain_jobs.put((state, obs, action.copy(), previous, proposal.decision_id, ctrl))
 
-    def _llm_explanation(self, state, obs, action, previous, decision_id: str, ctrl):
+    def _llm_explanation(
+        self, state, obs, action, previous, decision_id: str, ctrl
+    ) -> tuple[Explanation | None, float, str]:
         """The local LLM's explanation (``explain_level``) of the hottest cabinet's decision where it adds a verified
         what-if claim the rendering lacks; the rendering where it fails the judge or adds none (said in
         ``why_renderer``). Short: the rendering and the LLM's WHAT IF section (docs/llm.md). Returns the message to
