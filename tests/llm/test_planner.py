@@ -213,7 +213,7 @@ def planner_backend(local_model_dir):
 def test_the_shipped_adapter_plans_generated_questions(planner_backend):
     planner = LlmPlanner(backend=planner_backend.with_clock(frozen_clock))
     samples = [s for s in generate(40, seed=4242) if s.category in ("state", "rank", "alerts", "refusal", "change")]
-    samples = samples[:6]
+    samples = samples[:4]  # as on llama.cpp below: the benchmark measures the rate on held-out questions
     exact = 0
     for s in samples:
         plan = planner.plan(s.question)

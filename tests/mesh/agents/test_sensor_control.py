@@ -243,7 +243,10 @@ def test_a_slow_policy_in_worker_mode_repeats_its_last_action_instead_of_a_fallb
     assert sensor.tally["proposals_applied"] >= 10
 
 
-@pytest.mark.parametrize("level, heading", [("short", "## EXPLANATION"), ("detailed", "## EXECUTIVE SUMMARY")])
+# the detailed level (transformers, whose texts run out of their 10 s on 2 cores) in the slow tier: the default tier
+# has its explainer tests (tests/llm/test_explainer.py); the mesh's default, the short level, runs here
+@pytest.mark.parametrize("level, heading", [("short", "## EXPLANATION"),
+                                            pytest.param("detailed", "## EXECUTIVE SUMMARY", marks=pytest.mark.slow)])
 def test_the_llm_explainer_publishes_a_judged_text_over_the_rendering(start_agent, mesh_settings, level, heading):
     """Every decision gets the rendering; the LLM's text for the newest one replaces it where it adds a verified
     what-if claim (real model: llama.cpp with the short adapter, or transformers at the detailed level)."""

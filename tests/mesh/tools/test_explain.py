@@ -165,7 +165,7 @@ def test_pipeline_scores_over_hours_of_the_twin(lcopt5, controller):
     """Targets of the issue on real runs: grounding >= 0.98, coverage 1.0, direction >= 0.95."""
     trace = load_trace(FRONTIER_DAY, lcopt5)
     ctrl = make_controller("g36", lcopt5) if controller == "g36" else LoadFollowing(lcopt5)
-    hours = 3.0 if controller == "g36" else 2.0
+    hours = 2.0 if controller == "g36" else 1.5
     with Plant(lcopt5) as plant:
         lines = [json.dumps(r) for r in twin_explanation_records(
             plant, trace, ctrl, n_steps=int(hours * 240), every_steps=40, spinup_hours=0.5)]  # fmt: skip
