@@ -212,10 +212,10 @@ class ControlAgent(Agent):
         work = []
         if getattr(self.controller, "name", None) == "llm":
             every = getattr(self.controller, "period_steps", None)
-            work.append(f"the local LLM decides{f' every {every} plant steps' if every else ''} (controller llm)")
+            work.append(f"the local LLM is the controller{f', deciding every {every} plant steps' if every else ''}")
         if self.cfg.explain and self.cfg.explainer == "llm":
-            work.append(f"the local LLM writes {self.cfg.explain_level} explanations on a thread of its own "
-                        "(control.explainer = llm; renderer frees the core)")  # fmt: skip
+            work.append(f"the local LLM writes {self.cfg.explain_level} explanations on a thread of its own: "
+                        "LCMESH_CONTROL__EXPLAINER=renderer frees the core")  # fmt: skip
         return work
 
     def explained_by(self) -> dict:
