@@ -223,7 +223,8 @@ def head_metrics(y: np.ndarray, p: np.ndarray, scale: np.ndarray, n_branches: in
 def distill_llm(cfg: LlmDistillConfig, progress: Progress | None = None) -> dict:
     """The whole pipeline; returns the manifest it wrote beside the adapter."""
     from lcmesh.distill.ppo import git_commit
-    from lcmesh.llm.hf.backend import HfBackend, read_adapter_manifest
+    from lcmesh.llm.gguf_lora import read_adapter_manifest
+    from lcmesh.llm.hf.backend import HfBackend
     from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
     from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
     from lcmesh.twin.system import load_system

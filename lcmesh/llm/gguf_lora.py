@@ -29,6 +29,8 @@ import numpy as np
 
 from lcmesh.llm.model_cache import models_dir
 
+QUANT_DTYPES = ("bfloat16", "float32")  # the compute dtypes QLoRA training loads the base in (hf.backend.DTYPES)
+
 ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
 PACKAGED = {"explain": ARTIFACTS / "llm", "explain-short": ARTIFACTS / "llm-short", "control": ARTIFACTS / "llm-control",
             "planner": ARTIFACTS / "llm-planner"}  # fmt: skip
@@ -50,22 +52,40 @@ def resolve_folder(spec: str | None, kind: str) -> Path | None:
     return folder
 
 
+# The adapter's manifest, read without torch: the llama.cpp runtime (the mesh's agents) needs these fields too.
+def read_adapter_manifest(adapter: Path) -> dict | None:
+    """The ``manifest.json`` that ``lcmesh distill llm`` wrote beside an adapter; None if absent or unreadable."""
+    try:
+        manifest = json.loads((Path(adapter) / "manifest.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return manifest if isinstance(manifest, dict) else None
+
+
 def adapter_id(folder: Path | None) -> str:
+    """The manifest's ``adapter_id`` (the folder's name without one; 'base' for no adapter)."""
     if folder is None:
         return "base"
-    try:
-        manifest = json.loads((folder / "manifest.json").read_text())
-        return str(manifest.get("adapter_id", folder.name))
-    except (OSError, json.JSONDecodeError):
-        return folder.name
+    return str((read_adapter_manifest(folder) or {}).get("adapter_id", folder.name))
 
 
 def trained_quant(folder: Path) -> str:
-    try:
-        config = json.loads((folder / "manifest.json").read_text()).get("config") or {}
-    except (OSError, json.JSONDecodeError):
-        return "none"
-    return str(config.get("quant", "none"))
+    """How the base was quantized when the adapter was trained (its manifest's ``config.quant``; 'none' if unknown)."""
+    config = (read_adapter_manifest(folder) or {}).get("config")
+    return str(config.get("quant", "none")) if isinstance(config, dict) else "none"
+
+
+def adapter_quant_dtype(adapter: Path) -> str:
+    """The dtype the base's weights were in when bitsandbytes quantized them for ``adapter``'s training: the training's
+    compute dtype (the manifest's ``metrics.train.compute_dtype``, else ``config.compute_dtype``; bfloat16, the old
+    default, when neither says)."""
+    manifest = read_adapter_manifest(adapter) or {}
+    train = (manifest.get("metrics") or {}).get("train") or {}
+    config = manifest.get("config") or {}
+    for value in (train.get("compute_dtype"), config.get("compute_dtype")):
+        if value in QUANT_DTYPES:
+            return str(value)
+    return "bfloat16"
 
 
 def runtime_files(spec: str | None, kind: str) -> tuple[Path | None, Path | None, str]:
@@ -99,8 +119,6 @@ def _cached(target: Path, write) -> Path:
 
 
 def merged_gguf(folder: Path) -> Path:
-    from lcmesh.llm.hf.backend import adapter_quant_dtype
-
     dtype = adapter_quant_dtype(folder)  # part of the name: the nf4 image depends on it
     name = f"merged-{folder.name}-{_key(folder)}{'' if dtype == 'bfloat16' else '-' + dtype}.gguf"
     return _cached(models_dir() / name, lambda tmp: merge_to_gguf(folder, tmp))
@@ -114,7 +132,7 @@ def merge_to_gguf(folder: Path, target: Path) -> Path:
     from peft import PeftModel
     from transformers import AutoModelForCausalLM
 
-    from lcmesh.llm.hf.backend import adapter_quant_dtype, nf4_roundtrip
+    from lcmesh.llm.hf.backend import nf4_roundtrip
     from lcmesh.llm.model_cache import resolve_model, shipped_gguf
 
     model = AutoModelForCausalLM.from_pretrained(resolve_model("smollm2-135m-instruct"), dtype=torch.float32)

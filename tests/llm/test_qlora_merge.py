@@ -7,7 +7,8 @@ import json
 import pytest
 import torch
 
-from lcmesh.llm.hf.backend import adapter_base_quant, nf4_roundtrip
+from lcmesh.llm.gguf_lora import trained_quant
+from lcmesh.llm.hf.backend import nf4_roundtrip
 
 
 @pytest.mark.parametrize("dtype", ["bfloat16", "float32"])  # the compute dtype the base is loaded in for training
@@ -31,7 +32,7 @@ def test_the_nf4_image_is_what_bitsandbytes_trains_on(local_model_dir, dtype):
 
 
 def test_the_quantized_dtype_is_read_from_the_adapter_manifest(tmp_path):
-    from lcmesh.llm.hf.backend import adapter_quant_dtype
+    from lcmesh.llm.gguf_lora import adapter_quant_dtype
 
     assert adapter_quant_dtype(tmp_path) == "bfloat16"  # no manifest: the old default
     (tmp_path / "manifest.json").write_text(json.dumps({"config": {"compute_dtype": "auto"},
@@ -42,8 +43,8 @@ def test_the_quantized_dtype_is_read_from_the_adapter_manifest(tmp_path):
 
 
 def test_the_base_quantization_is_read_from_the_adapter_manifest(tmp_path):
-    assert adapter_base_quant(tmp_path) == "none"  # no manifest: a plain LoRA adapter
+    assert trained_quant(tmp_path) == "none"  # no manifest: a plain LoRA adapter
     (tmp_path / "manifest.json").write_text(json.dumps({"config": {"quant": "nf4"}}))
-    assert adapter_base_quant(tmp_path) == "nf4"
+    assert trained_quant(tmp_path) == "nf4"
     (tmp_path / "manifest.json").write_text("{not json")
-    assert adapter_base_quant(tmp_path) == "none"
+    assert trained_quant(tmp_path) == "none"

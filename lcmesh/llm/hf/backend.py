@@ -22,6 +22,7 @@ from pathlib import Path
 
 from lcmesh.llm.base import Conversation, Generation, LlmBackendSettings
 from lcmesh.llm.budget import PROBE_TOKENS, Clock, PassCost
+from lcmesh.llm.gguf_lora import adapter_id, adapter_quant_dtype, trained_quant
 from lcmesh.llm.model_cache import offline_env, quiet_libraries, resolve_model
 
 offline_env()
@@ -53,34 +54,6 @@ def resolve_adapter(spec: str | None) -> Path | None:
     if not (path / "adapter_config.json").is_file():
         raise FileNotFoundError(f"`adapter` {spec!r} is not a LoRA adapter folder (no adapter_config.json)")
     return path
-
-
-def read_adapter_manifest(adapter: Path) -> dict | None:
-    """The ``manifest.json`` that ``lcmesh distill llm`` wrote beside an adapter; None if absent or unreadable."""
-    try:
-        manifest = json.loads((Path(adapter) / "manifest.json").read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    return manifest if isinstance(manifest, dict) else None
-
-
-def adapter_base_quant(adapter: Path) -> str:
-    """How the base was quantized when ``adapter`` was trained (its manifest's ``config.quant``; 'none' if unknown)."""
-    config = (read_adapter_manifest(adapter) or {}).get("config")
-    return str(config.get("quant", "none")) if isinstance(config, dict) else "none"
-
-
-def adapter_quant_dtype(adapter: Path) -> str:
-    """The dtype the base's weights were in when bitsandbytes quantized them for ``adapter``'s training: the training's
-    compute dtype (the manifest's ``metrics.train.compute_dtype``, else ``config.compute_dtype``; bfloat16, the old
-    default, when neither says)."""
-    manifest = read_adapter_manifest(adapter) or {}
-    train = (manifest.get("metrics") or {}).get("train") or {}
-    config = manifest.get("config") or {}
-    for value in (train.get("compute_dtype"), config.get("compute_dtype")):
-        if value in DTYPES:
-            return str(value)
-    return "bfloat16"
 
 
 def nf4_roundtrip(model, blocksize: int = 64, dtype: str = "bfloat16") -> int:
@@ -122,7 +95,7 @@ class HfBackend:
         if self.tokenizer.pad_token is None:
             self.tokenizer.pad_token = self.tokenizer.eos_token
         model = AutoModelForCausalLM.from_pretrained(self.model_dir, dtype=torch.float32)
-        self.base_quant = adapter_base_quant(self.adapter) if self.adapter is not None else "none"
+        self.base_quant = trained_quant(self.adapter) if self.adapter is not None else "none"
         if self.base_quant == "nf4":
             nf4_roundtrip(model, dtype=adapter_quant_dtype(self.adapter))
         if adapter is not None:
@@ -131,7 +104,7 @@ class HfBackend:
             model = PeftModel.from_pretrained(model, str(adapter)).merge_and_unload()
         self.model = model.to(DTYPES[dtype]).eval()
         self.load_seconds = clock() - t0
-        self.model_id = f"{_model_name(self.model_dir)}+{_adapter_name(self.adapter)}"
+        self.model_id = f"{_model_name(self.model_dir)}+{adapter_id(self.adapter)}"
         self.last_forward_passes = 0
         self.pass_cost = PassCost()
         if calibrate:
@@ -394,7 +367,3 @@ def _model_name(model_dir: Path) -> str:
         return model_dir.name
 
 
-def _adapter_name(adapter: Path | None) -> str:
-    if adapter is None:
-        return "base"
-    return str((read_adapter_manifest(adapter) or {}).get("adapter_id", adapter.name))
