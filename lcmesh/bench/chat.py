@@ -33,8 +33,9 @@ from lcmesh.mesh.tools import registry
 QUESTIONS = "chat_questions.jsonl"
 # b: written by an outside author for issue 24, test only (never read while tuning); c: by another outside author to the
 # same brief, dev only (what the question check and the rules were tuned on after set b was first scored)
-QUESTION_SETS = {"a": QUESTIONS, "b": "chat_questions_b.jsonl", "c": "chat_questions_c.jsonl"}
-SET_SPLITS = {"a": ("dev", "test"), "b": ("test",), "c": ("dev",)}
+QUESTION_SETS = {"a": QUESTIONS, "b": "chat_questions_b.jsonl", "c": "chat_questions_c.jsonl",
+                 "d": "chat_questions_d.jsonl"}
+SET_SPLITS = {"a": ("dev", "test"), "b": ("test",), "c": ("dev",), "d": ("test",)}
 
 
 @dataclass(frozen=True)
@@ -273,7 +274,9 @@ def markdown(report: dict[str, Any]) -> str:
              "have (energy over a window, setpoint gaps, where and when, top-N blade groups, another controller on "
              "the twin, the weather). Set `c` (`chat_questions_c.jsonl`, all dev) was written to the same brief by "
              "a second outside author after set b was first scored, and is what the question check and the rules "
-             "were tuned on since (set b and the test split were not read). *Declined*: the reply says the question asks for something the results do "
+             "were tuned on since (set b and the test split were not read). Set `d` (`chat_questions_d.jsonl`, all "
+             "test) was written for issue 34 by a third outside author, given only the tool specs and a brief on how "
+             "operators write, before any work on the question reading; nobody who tunes reads it. *Declined*: the reply says the question asks for something the results do "
              "not give and offers them as what it can give instead; never grounded, never counted right unless "
              "the question is one to refuse.", "",
              "| planner | part | questions | tool calls right | answers right | refusals right | wrong but "

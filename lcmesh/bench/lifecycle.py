@@ -16,6 +16,11 @@ loopback ports, in its own session as a terminal would run it, and then:
 The tests (tests/mesh/test_lifecycle.py) run the same trials on lighter meshes (configuration and
 monitor agents) and assert what is left; the seconds are reported here only (the targets: 10 s to
 stop, 15 s to refuse).
+
+``--trials N`` runs instead N times the race that once left a process behind (1 of 13 on busy cores):
+the demo is SIGKILLed as soon as its UI first answers, while its agents are still starting (the
+Sensor in its spin-up), and whatever of its data dir still runs 10 s later is counted (and then
+killed). ``--load N`` keeps N busy-loop processes running meanwhile.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
+import urllib.request
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,8 +81,9 @@ def demo_env(roles: tuple[str, ...]) -> dict[str, str]:
 
 
 def start_demo(data_dir: Path, roles: tuple[str, ...] = ROLES, port: int | None = None,
-               ui_port: int | None = None) -> DemoRun:  # fmt: skip
-    """Start ``lcmesh demo`` in its own session (as a terminal's foreground job) and wait until all of it runs."""
+               ui_port: int | None = None, wait: bool = True) -> DemoRun:  # fmt: skip
+    """Start ``lcmesh demo`` in its own session (as a terminal's foreground job) and wait until all of it runs
+    (unless not `wait`)."""
     data_dir.mkdir(parents=True, exist_ok=True)
     port, ui_port = port or free_port(), ui_port or free_port()
     output = data_dir.parent / f"{data_dir.name}.out"
@@ -84,6 +92,8 @@ def start_demo(data_dir: Path, roles: tuple[str, ...] = ROLES, port: int | None 
                                   str(data_dir)], env=demo_env(roles), stdout=out, stderr=subprocess.STDOUT,
                                  stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
     run = DemoRun(popen, data_dir, port, ui_port, tuple(roles), output)
+    if not wait:
+        return run
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline and popen.poll() is None:
         if len(mesh_processes(data_dir)) >= run.expected and all(wait_for_port("127.0.0.1", p, 0.1)
@@ -204,6 +214,105 @@ def run_bench_lifecycle(say: Callable[[str], None] = print, root: Path | None = 
         stop_everything(run)
     return {"machine": machine_info(), "roles": list(roles),
             "targets": {"stop_s": STOP_TARGET_S, "stale_s": STALE_TARGET_S}, "signals": trials, **extra}
+
+
+def ui_answers(port: int) -> bool:
+    """Whether an HTTP server answers on 127.0.0.1:`port` (any status)."""
+    try:
+        urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=1.0).close()
+    except urllib.error.HTTPError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+def burners(n: int) -> list[subprocess.Popen]:
+    """`n` processes that keep a core busy each (busy-loop Python), until killed."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
+            for _ in range(n)]  # fmt: skip
+
+
+def kill_after_ui_trial(data_dir: Path, roles: tuple[str, ...] = DEMO_ROLES) -> dict:
+    """Start the demo, SIGKILL it the moment its UI first answers, count what of its data dir runs 10 s later."""
+    t0 = time.monotonic()
+    run = start_demo(data_dir, roles, wait=False)
+    try:
+        deadline = t0 + START_TIMEOUT_S
+        while not ui_answers(run.ui_port):
+            if time.monotonic() > deadline or run.popen.poll() is not None:
+                raise RuntimeError(f"the demo's UI did not answer within {START_TIMEOUT_S:g} s:\n{run.text()[-3000:]}")
+            time.sleep(0.05)
+        ui_s = time.monotonic() - t0
+        before = mesh_processes(run.data_dir)
+        killed_at = time.monotonic()
+        os.kill(run.popen.pid, signal.SIGKILL)
+        left_at_target, gone_s = None, None
+        while (since := time.monotonic() - killed_at) < 60.0:
+            left = mesh_processes(run.data_dir)
+            if left_at_target is None and since >= STOP_TARGET_S:
+                left_at_target = left
+            if not left:
+                gone_s = since
+                break
+            time.sleep(0.1)
+        left_at_target = left_at_target or []
+        logs = {p.role: _log_tail(run.data_dir / "logs" / f"{p.role}.log") for p in left_at_target}
+    finally:
+        stop_everything(run)
+    return {"ui_answered_s": round(ui_s, 2), "processes_at_kill": len(before),
+            "seconds_to_none_left": None if gone_s is None else round(gone_s, 2),
+            "left_after_10_s": [f"{p.role} pid {p.pid}" for p in left_at_target],
+            "left_after_60_s": [] if gone_s is not None else [f"{p.role} pid {p.pid}" for p in left],
+            "their_last_log_lines": logs}  # fmt: skip
+
+
+def _log_tail(path: Path, n: int = 8) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
+    except OSError:
+        return ""
+
+
+def run_kill_after_ui(trials: int, load: int = 0, say: Callable[[str], None] = print, root: Path | None = None,
+                      roles: tuple[str, ...] = DEMO_ROLES) -> dict:  # fmt: skip
+    """`trials` of ``kill_after_ui_trial`` with `load` busy-loop processes running; the table and its sums."""
+    root = Path(root or tempfile.mkdtemp(prefix="lcmesh-kill-race-"))
+    busy = burners(load)
+    results = []
+    try:
+        for i in range(trials):
+            trial = kill_after_ui_trial(root / f"demo-{i + 1}", roles)
+            results.append(trial)
+            gone = trial["seconds_to_none_left"]
+            say(f"trial {i + 1}/{trials}: UI after {trial['ui_answered_s']:.1f} s, {trial['processes_at_kill']} "
+                f"processes killed with the demo, all gone after {'over 60' if gone is None else f'{gone:.1f}'} s, "
+                f"left after 10 s: {trial['left_after_10_s'] or 'none'}")  # fmt: skip
+    finally:
+        for burner in busy:
+            burner.kill()
+            burner.wait()
+    gone = sorted(t["seconds_to_none_left"] for t in results if t["seconds_to_none_left"] is not None)
+    return {"machine": machine_info(), "roles": list(roles), "load": load, "trials": results,
+            "trials_with_processes_left": sum(bool(t["left_after_10_s"]) for t in results),
+            "processes_left": sum(len(t["left_after_10_s"]) for t in results),
+            "seconds_to_none_left_max": gone[-1] if len(gone) == len(results) and gone else None}  # fmt: skip
+
+
+def render_kill_after_ui(result: dict) -> str:
+    """The kill-race table (markdown)."""
+    lines = [f"SIGKILL of `lcmesh demo` as soon as its UI answers, {len(result['trials'])} trials, {result['load']} "
+             f"busy-loop processes; {result['machine']['logical_cpus']} logical CPUs, commit "
+             f"{result['machine']['commit']}.", "",
+             "| trial | UI answered (s) | processes killed with the demo | all gone after (s) | left after 10 s |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    for i, t in enumerate(result["trials"], 1):
+        gone = "over 60" if t["seconds_to_none_left"] is None else f"{t['seconds_to_none_left']:.1f}"
+        lines.append(f"| {i} | {t['ui_answered_s']:.1f} | {t['processes_at_kill']} | {gone} | "
+                     f"{', '.join(t['left_after_10_s']) or 'none'} |")  # fmt: skip
+    lines += ["", f"Trials with a process left after 10 s: {result['trials_with_processes_left']} of "
+              f"{len(result['trials'])}."]  # fmt: skip
+    return "\n".join(lines)
 
 
 def render_lifecycle(result: dict) -> str:

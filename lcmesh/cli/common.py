@@ -22,7 +22,9 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(train_app, name="train")
 app.add_typer(distill_app, name="distill")
 
-console = Console(stderr=True)
+# soft wrap: a line is never broken at the console's width; a terminal wraps it for the eye, and a log file or pipe (the
+# demo's output under systemd, a bench's .out file) keeps one message a line, greppable ("pid 9142", not "pid\n9142")
+console = Console(stderr=True, soft_wrap=True)
 
 SystemOpt = Annotated[str, typer.Option("--system", "-s", help="reference system name (lcopt-5 ...) or a .json path")]
 ScenarioOpt = Annotated[

@@ -90,7 +90,7 @@ def demo(
                          data_dir=data_dir)  # fmt: skip
     changes = {k: v for k, v in {"speed_factor": speed_factor, "controller": controller}.items() if v is not None}
     raise typer.Exit(run_demo(settings, duration_s=duration, config_changes=changes, resume=resume,
-                              say=console.print))  # fmt: skip
+                              say=lambda text: console.print(text, markup=False, highlight=False)))  # fmt: skip
 
 
 DataDirOpt = Annotated[Optional[Path], typer.Option(help="the mesh's data dir (default LCMESH_DATA_DIR or runs/mesh)")]
@@ -181,9 +181,20 @@ def bench_mesh(
 def bench_lifecycle(
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+    trials: Annotated[int, typer.Option(min=0, help="instead: this many SIGKILLs of the demo as soon as its UI "
+                                        "answers, counting what is left 10 s later")] = 0,
+    load: Annotated[int, typer.Option(min=0, help="busy-loop processes to run meanwhile (cores kept busy)")] = 0,
 ) -> None:
     """How the demo stops on SIGHUP/SIGINT/SIGTERM/SIGKILL, an orchestrator's death, and a second start refused."""
-    from lcmesh.bench.lifecycle import render_lifecycle, run_bench_lifecycle
+    from lcmesh.bench.lifecycle import render_kill_after_ui, render_lifecycle, run_bench_lifecycle, run_kill_after_ui
     from lcmesh.cli.common import write_bench
 
+    if trials:
+        result = run_kill_after_ui(trials, load, say=console.print)
+        print(render_kill_after_ui(result))
+        json_out = json_out or Path("runs/bench/lifecycle_kill_after_ui.json")
+        write_json(json_out, result)
+        return
+    if load:
+        fail("`--load` goes with `--trials` (the SIGKILL race); the full lifecycle bench runs on a quiet machine")
     write_bench(json_out, markdown, "lifecycle", run_bench_lifecycle(say=console.print), render=render_lifecycle)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import atexit
 import json
 import logging
-import math
 import threading
 import time
 import weakref
@@ -28,7 +27,7 @@ import zenoh
 from pydantic import BaseModel, ValidationError
 
 from lcmesh.mesh import security
-from lcmesh.mesh.ratelimit import TokenBuckets
+from lcmesh.mesh.ratelimit import TokenBuckets, limited_text
 from lcmesh.mesh.settings import MeshSettings
 
 log = logging.getLogger("lcmesh.mesh.bus")
@@ -142,21 +141,36 @@ def client_config(settings: MeshSettings, role: str = "operator") -> zenoh.Confi
     config = _base_config(settings, "client")
     config.insert_json5("connect/endpoints", json.dumps(settings.router_endpoints))
     if settings.bus_auth:
-        if settings.bus_password is not None:
-            password = settings.bus_password.get_secret_value()
-        else:
-            password = security.read_password(settings.secrets_path, role)
-        if password is None:
-            missing = security.SecretPaths(settings.secrets_path).password(role)
-            raise BusError(f"no bus password for role {role!r}: {missing} is missing (the router creates the run's "
-                           "secrets on its first start; or set LCMESH_BUS_PASSWORD)")  # fmt: skip
+        password = bus_password(settings, role)
         config.insert_json5("transport/auth/usrpwd", json.dumps({"user": role, "password": password}))
     if _tls(settings.router_endpoints):
-        ca = security.SecretPaths(settings.secrets_path).ca_cert
+        ca = security.SecretPaths(settings.secrets_path).client_ca_cert()
         if not ca.exists():
             raise BusError(f"tls/ endpoint but no CA certificate at {ca} (the router creates it on its first start)")
         config.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(str(ca)))
     return config
+
+
+def bus_password(settings: MeshSettings, role: str) -> str:
+    """`role`'s bus password: ``LCMESH_BUS_PASSWORD``, else the file ``LCMESH_BUS_PASSWORD_FILE`` names, else
+    ``SECRETS_DIR/{role}/bus.password``; BusError naming where it looked if none is there."""
+    if settings.bus_password is not None:
+        return settings.bus_password.get_secret_value()
+    if settings.bus_password_file is not None:
+        try:
+            password = settings.bus_password_file.read_text().strip()
+        except OSError as exc:
+            raise BusError(f"`LCMESH_BUS_PASSWORD_FILE` = {settings.bus_password_file} can not be read: "
+                           f"{exc.strerror or exc}") from None  # fmt: skip
+        if not password:
+            raise BusError(f"`LCMESH_BUS_PASSWORD_FILE` = {settings.bus_password_file} is empty")
+        return password
+    password = security.read_password(settings.secrets_path, role)
+    if password is None:
+        missing = security.SecretPaths(settings.secrets_path).password(role)
+        raise BusError(f"no bus password for role {role!r}: {missing} is missing (the router creates the run's "
+                       "secrets on its first start; or set LCMESH_BUS_PASSWORD_FILE or LCMESH_BUS_PASSWORD)")
+    return password
 
 
 def router_config(settings: MeshSettings) -> zenoh.Config:
@@ -302,9 +316,10 @@ class Bus:
         self.counters.count(self.counters.msgs_out, self.short(key))
 
     def subscribe(
-        self, key: str, model: type[M], handler: Callable[[M], None], *, latest: bool = False
+        self, key: str, model: type[M], handler: Callable[..., None], *, latest: bool = False, keyed: bool = False
     ) -> Declared:
-        """Call `handler(model)` for each valid message on `key` (a key expression; wildcards allowed)."""
+        """Call `handler(model)` for each valid message on `key` (a key expression; wildcards allowed);
+        `handler(model, key)` with `keyed`, the key it arrived on (what the router let its sender publish)."""
         name = self.short(key)
 
         def on_payload(payload: bytes, where: str) -> None:
@@ -319,7 +334,7 @@ class Bus:
                 return
             t0 = time.perf_counter()
             try:
-                handler(msg)
+                handler(msg, where) if keyed else handler(msg)
             except Exception as exc:
                 log.exception("handler for %s failed", where)
                 self._report(where, exc)
@@ -346,7 +361,8 @@ class Bus:
         """Answer GETs on `key` with `handler(payload)`'s JSON; QueryError or any failure becomes an error reply.
 
         With `limit`, a query over its rate is answered with an error that says when to retry (counted in
-        ``counters.rate_limited``), and the handler does not run.
+        ``counters.rate_limited``), and the handler does not run. A queryable on ``.../*`` keeps a bucket per
+        last segment asked (the asking role, ``tools/{name}/{role}``), so one role's flood spends its own.
         """
 
         def raw(payload: bytes | None) -> bytes | None:
@@ -358,19 +374,22 @@ class Bus:
     def serve_raw(self, key: str, handler: Callable[[bytes | None], bytes | None], *,
                   limit: TokenBuckets | None = None) -> Declared:  # fmt: skip
         name = self.short(key)
+        per_asker = key.endswith("/*")
 
         def on_query(query) -> None:
             try:
                 self.counters.count(self.counters.msgs_in, name)
-                # one bucket per queryable: zenoh hands a queryable no authenticated asker (a query's
-                # source_info, when there is one, is what the asking session says about itself)
-                wait_s = limit.take(name) if limit is not None else 0.0
-                if wait_s > 0:
-                    self.counters.count(self.counters.rate_limited, name)
-                    retry_s = math.ceil(wait_s * 10) / 10  # never "retry in 0.0 s"
-                    query.reply_err(f"rate limited: {limit.rate_per_s:g} queries/s for {name}; retry in "
-                                    f"{retry_s:.1f} s".encode())  # fmt: skip
-                    return
+                if limit is not None:
+                    bucket = _bucket(name, str(query.key_expr), per_asker)
+                    if bucket is None:
+                        self.counters.count(self.counters.invalid, name)
+                        query.reply_err(f"ask {name[:-1]}<your role>, not {self.short(str(query.key_expr))}".encode())
+                        return
+                    wait_s = limit.take(bucket)
+                    if wait_s > 0:
+                        self.counters.count(self.counters.rate_limited, bucket)
+                        query.reply_err(limited_text(f"{limit.rate_per_s:g} queries/s for {bucket}", wait_s).encode())
+                        return
                 payload = query.payload.to_bytes() if query.payload is not None else None
                 try:
                     answer = handler(payload)
@@ -465,6 +484,21 @@ class Bus:
             self.session.close()
         except Exception as exc:
             log.debug("closing the session: %s", exc)
+
+
+def _bucket(name: str, asked_key: str, per_asker: bool) -> str | None:
+    """The token bucket of a query: the queryable's, or on a ``.../*`` queryable the asker's (its last segment).
+
+    Zenoh hands a queryable no authenticated asker (a query's source_info is what the asking session says
+    about itself), so the key carries it: the router's ACL lets each role ask only keys ending in its own
+    name (``tools/*/{role}``). None when that segment is a wildcard, which no role is granted.
+    """
+    if not per_asker:
+        return name
+    asker = asked_key.rsplit("/", 1)[-1]
+    if "*" in asker or "$" in asker:
+        return None
+    return f"{name[:-1]}{asker}"
 
 
 def _first_line(exc: Exception) -> str:

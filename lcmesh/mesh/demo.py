@@ -11,6 +11,10 @@ Before starting it refuses, with a message naming the process and how to stop it
 mesh still runs and router or UI ports that another process holds; a router that later finds its
 port taken ends the demo the same way instead of being restarted in a loop. ``DATA_DIR/mesh.json``
 says what runs (``lcmesh status``).
+
+No child inherits a secret from the demo's environment: ``LCMESH_API_TOKEN`` and ``LCMESH_LLM_API_KEY``
+move into their roles' folders under ``SECRETS_DIR`` (``security.store_env_secrets``), and each agent
+is given its own role's files alone (``processes.agent_env``; docs/mesh.md, Security).
 """
 
 from __future__ import annotations
@@ -29,9 +33,9 @@ from lcmesh.mesh.bus import Bus, BusError
 from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import AgentEvent, ConfigDoc, ConfigUpdate
 from lcmesh.mesh.processes import (
-    Child, agent_child, child_env, read_pidfile, router_child, same_process, tcp_host_port, wait_for_port,
+    Child, agent_child, agent_env, child_env, read_pidfile, router_child, same_process, tcp_host_port, wait_for_port,
 )  # fmt: skip
-from lcmesh.mesh.security import ensure_secrets, private_dir
+from lcmesh.mesh.security import ensure_secrets, private_dir, store_env_secrets
 from lcmesh.mesh.service import (
     EXIT_BUSY, busy_reason, new_run_file, port_held_message, remove_run_file, write_run_file,
 )  # fmt: skip
@@ -51,7 +55,7 @@ class Demo:
 
     def __init__(self, settings: MeshSettings, say: Callable[[str], None] = print):
         self.settings, self.say = settings, say
-        self.env = child_env(None, **settings.to_env())
+        self.env = child_env(None, **settings.to_env())  # no secret: each child gets its own role's files
         self.router: Child | None = None
         self.orchestrator: Child | None = None
         self.bus: Bus | None = None
@@ -82,13 +86,16 @@ class Demo:
         s.log_dir.mkdir(parents=True, exist_ok=True)
         if s.bus_auth:  # before any process needs them; the router would create them too
             ensure_secrets(s.secrets_path)
-        self.router = router_child(self.env, s.log_dir / "router.log").start()
+        # the API token and the LLM key, from this process's environment or one a caller set: into their roles' folders
+        store_env_secrets(s.secrets_path, {**os.environ, **self.env})
+        self.router = router_child(child_env(self.env, "router"), s.log_dir / "router.log").start()
         host, port = tcp_host_port(s.listen_endpoints[0])
         if not wait_for_port(host, port, timeout_s=15.0):
             tail = self.router.log_tail()
             self.stop()
             raise BusError(f"the router did not open {s.listen_endpoints[0]}:\n{tail}")
-        self.orchestrator = agent_child("orchestration", "orchestration", self.env, s.log_dir / "orchestration.log")
+        env = agent_env(self.env, "orchestration", s.secrets_path)  # no secret but its own password file
+        self.orchestrator = agent_child("orchestration", "orchestration", env, s.log_dir / "orchestration.log")
         self.orchestrator.start()
         self._write_run_file()
         try:

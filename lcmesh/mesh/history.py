@@ -1,11 +1,17 @@
 """History: plant states, applied actions, explanations, alerts, config changes and agent events in SQLite.
 
-One file (``MeshSettings.history_file``), WAL mode with a busy timeout so several agent
-processes write to it at once: the Sensor writes each step's applied action, the next plant
-state and a checkpoint of the FMU state in one transaction (so a restarted Sensor resumes with
-no gap in step indices), the Control agent its explanations, the Maintenance agent its alerts,
-the Configuration agent config changes, the Orchestrator agent events. Each producer writes
-before it publishes, so what was on the bus is in the file.
+One file (``MeshSettings.history_file``) and one writer, the Sensor agent: it writes each step's
+applied action, the next plant state and a checkpoint of the FMU state in one transaction (so a
+restarted Sensor resumes with no gap in step indices), and records what the other agents publish
+(``lcmesh.mesh.agents.recorder``): the Control agent's explanations, the Maintenance agent's alerts,
+the Configuration agent's config documents, every agent's events. No other agent opens a
+``HistoryWriter``, so a compromised agent cannot write a row the bus did not carry from the role
+the router lets publish it.
+
+Everyone else reads with ``HistoryReader``, a read-only (``mode=ro``) connection, which also works on
+a read-only mount of the file's folder (docker-compose.yml): while the Sensor runs, its -wal and
+-shm are there to read; when it has closed the file cleanly SQLite has removed them and a read-only
+reader can not create them, so it reads the quiescent file as immutable.
 
 The file and its -wal/-shm are created with mode 0600 (a missing parent folder with 0700) and
 with incremental auto-vacuum, so the Sensor's writer can keep it under a bound
@@ -227,7 +233,7 @@ class HistoryWriter:
             log.exception("history retention pass failed; retried at the next one")
             return None
 
-    # --- the other producers --------------------------------------------------------------------
+    # --- what the other agents publish (recorded by the Sensor, lcmesh.mesh.agents.recorder) ----------------
     def add_explanation(self, msg: Explanation) -> None:
         facts = json.dumps([f.model_dump() for f in msg.facts])
         self._write([("INSERT INTO explanations (decision_id, step, controller, level, text, facts, source, "
@@ -243,8 +249,10 @@ class HistoryWriter:
                        json.dumps(msg.evidence, default=str), msg.prescription, msg.predicted_failure_s, msg.step,
                        msg.time_s, msg.source, msg.sent_at.isoformat()))])  # fmt: skip
 
-    def add_config_change(self, doc: ConfigDoc, changes: dict) -> None:
-        self._write([("INSERT OR REPLACE INTO config_changes VALUES (?, ?, ?, ?, ?, ?)",
+    def add_config_change(self, doc: ConfigDoc, changes: dict | None = None) -> None:
+        """The audit row of a config version (`changes`: the doc's own); a version already audited is kept as is."""
+        changes = doc.changes if changes is None else changes
+        self._write([("INSERT OR IGNORE INTO config_changes VALUES (?, ?, ?, ?, ?, ?)",
                       (doc.version, doc.changed_by, doc.reason, json.dumps(changes, default=str),
                        doc.config.model_dump_json(), doc.sent_at.isoformat()))])  # fmt: skip
 
@@ -276,7 +284,7 @@ def _action_row(a: AppliedAction) -> tuple[str, Sequence]:
 
 
 class HistoryReader:
-    """Read-only queries over a history file (the UI's data source)."""
+    """Read-only queries over a history file (the UI's data source; every agent but the Sensor)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -290,7 +298,23 @@ class HistoryReader:
 
     def _rows(self, sql: str, params: Sequence = ()) -> list[dict]:
         with self._lock:
-            return [dict(r) for r in self._conn.execute(sql, params).fetchall()]
+            try:
+                return [dict(r) for r in self._conn.execute(sql, params).fetchall()]
+            except sqlite3.OperationalError:
+                if not self._writer_gone():
+                    raise
+            # the writer closed the file and took its -wal and -shm along; on a read-only mount no reader
+            # can create them, so read the file as it is (nothing writes it until a writer opens it again)
+            conn = sqlite3.connect(f"{self.path.resolve().as_uri()}?immutable=1", uri=True)
+            conn.row_factory = sqlite3.Row
+            try:
+                return [dict(r) for r in conn.execute(sql, params).fetchall()]
+            finally:
+                conn.close()
+
+    def _writer_gone(self) -> bool:
+        """No -wal beside the file: no writer has it open, and every write is in the file itself."""
+        return self.path.exists() and not self.path.with_name(self.path.name + "-wal").exists()
 
     def runs(self) -> list[dict]:
         """All runs, newest first."""

@@ -69,9 +69,13 @@ def agent_stats_all(site: str) -> str:
     return f"{site_prefix(site)}/monitor/stats/*"
 
 
-def events(site: str) -> str:
-    """Agent events: started, died, restarted, exceptions (shown by the UI)."""
-    return f"{site_prefix(site)}/events"
+def events(site: str, role: str = "*") -> str:
+    """Agent events: started, died, restarted, exceptions (shown by the UI, recorded by the Sensor).
+
+    Each role publishes on ``events/{role}``, the only events key the router lets it publish on, so the
+    history's writer knows which role sent an event; without `role`, the events of every role.
+    """
+    return f"{site_prefix(site)}/events/{role if role == '*' else segment(role, 'role')}"
 
 
 def config(site: str, name: str = "all") -> str:
@@ -89,8 +93,14 @@ def configure(site: str, role: str, name: str = "all") -> str:
     return f"{site_prefix(site)}/configure/{segment(role, 'role')}/{segment(name, 'config name')}"
 
 
-def tool(site: str, name: str) -> str:
-    return f"{site_prefix(site)}/tools/{segment(name, 'tool')}"
+def tool(site: str, name: str, role: str) -> str:
+    """Where `role` asks tool `name`: the router lets only `role` reach it, so the host's rate limit is per role."""
+    return f"{site_prefix(site)}/tools/{segment(name, 'tool')}/{segment(role, 'role')}"
+
+
+def tool_served(site: str, name: str) -> str:
+    """What a host serves for tool `name`: every role's ``tools/{name}/{role}``."""
+    return f"{site_prefix(site)}/tools/{segment(name, 'tool')}/*"
 
 
 def cmd(site: str, agent_id: str, verb: str) -> str:
@@ -129,10 +139,10 @@ def all_keys(site: str) -> dict[str, str]:
         "alerts": alerts(site),
         "monitor_report": monitor_report(site),
         "agent_stats": f"{site_prefix(site)}/monitor/stats/{{agent_id}}",
-        "events": events(site),
+        "events": f"{site_prefix(site)}/events/{{role}}",
         "config": f"{site_prefix(site)}/config/{{name}}",
         "configure": f"{site_prefix(site)}/configure/{{role}}/{{name}}",
-        "tool": f"{site_prefix(site)}/tools/{{tool}}",
+        "tool": f"{site_prefix(site)}/tools/{{tool}}/{{role}}",
         "cmd": f"{site_prefix(site)}/cmd/{{agent_id}}/{{verb}}",
         "alive": f"{site_prefix(site)}/alive/{{role}}/{{agent_id}}",
     }

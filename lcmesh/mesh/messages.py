@@ -8,6 +8,7 @@ Non-finite numbers are refused at the edge (``allow_inf_nan=False``).
 
 from __future__ import annotations
 
+import math
 import uuid
 from datetime import datetime, timezone
 from typing import Any, Literal
@@ -26,6 +27,18 @@ SCHEMA_VERSION = 1
 
 def utc_now() -> datetime:
     return datetime.now(timezone.utc)
+
+
+def check_finite(value: Any, where: str = "") -> None:
+    """ValueError naming the first NaN or infinite number in parsed JSON (``json.loads`` lets them in)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"`{where or 'value'}` must be a finite number, got {value!r}")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            check_finite(item, f"{where}.{key}" if where else str(key))
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            check_finite(item, f"{where}[{i}]")
 
 
 def new_id() -> str:
@@ -274,6 +287,10 @@ class ConfigDoc(Message):
     config: MeshConfig
     changed_by: str = ""
     reason: str = ""
+    signature: str = Field("", max_length=200, description="the Configuration agent's Ed25519 signature of the "
+                           "version and config, base64 (security.config_signed_bytes); agents adopt only a valid one")
+    changes: dict[str, Any] = Field(default_factory=dict, description="what this version changed, "
+                                    "{dotted field: [old, new]} (history's config_changes row records it)")
 
 
 class ConfigUpdate(_Part):
@@ -283,6 +300,12 @@ class ConfigUpdate(_Part):
     by: str = Field(min_length=1, max_length=64)
     reason: str = ""
     expected_version: int | None = Field(None, description="refuse if the current version differs")
+
+    @field_validator("changes")
+    @classmethod
+    def _finite(cls, value: dict[str, Any]) -> dict[str, Any]:  # `Any` is not checked by allow_inf_nan
+        check_finite(value, "changes")
+        return value
 
 
 # --- commands --------------------------------------------------------------------------------------

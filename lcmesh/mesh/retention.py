@@ -2,7 +2,7 @@
 
 The Sensor's ``HistoryWriter`` runs a pass every ``prune_every_steps`` steps, after the step's
 action is published, in its own connection. A pass is a few short transactions of at most
-``batch_rows`` rows each (other writers wait on SQLite's lock only that long), and starts no new
+``batch_rows`` rows each (the step and the rows the Sensor records wait only that long), and starts no new
 one after ``pass_budget_ms``; what is left waits for the next pass. Ages are wall-clock, measured
 on each row's own timestamp (``sent_at``, ``applied_at``, ``created_at``), so they mean the same
 at any speed factor and across runs; the size bound is what caps a fast demo.

@@ -22,6 +22,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+PER_PROCESS = ("bus_password", "bus_password_file")  # one process's own secret: never in a child's environment
 MIN_VALVE_EXERCISE_S = 60.0  # four 15 s plant steps: one stroke must fit in a period
 
 
@@ -76,8 +77,16 @@ class SensorConfig(_Component):
     # a what-if holds the twin while it runs (the longest, 2880 steps twice, ~0.2 s): at 1 a second for each of
     # the two what-if tools a flood holds it at most ~0.4 s a second; a chat answer's few what-ifs fit the burst
     tools_rate_per_s: float = Field(1.0, gt=0, le=10_000, description="queries a second each tools/{name} "
-                                    "queryable answers once its burst is spent; more get 'rate limited'")  # fmt: skip
-    tools_burst: int = Field(10, ge=1, le=100_000, description="queries each tools/{name} queryable answers at once")
+                                    "queryable answers each asking role once its burst is spent; more get 'rate "
+                                    "limited'")  # fmt: skip
+    tools_burst: int = Field(10, ge=1, le=100_000, description="queries each tools/{name} queryable answers each "
+                             "asking role at once")  # fmt: skip
+    # what-ifs together, whoever asks: the largest (a controller what-if, 60 min twice) is 120 plant minutes
+    whatif_max_running: int = Field(2, ge=1, le=64, description="what-ifs running or waiting for the twin at once; "
+                                    "more are refused 'rate limited' (HTTP 429 through the UI)")  # fmt: skip
+    whatif_plant_minutes_per_min: float = Field(240.0, gt=0, le=1e6, description="plant minutes the what-ifs "
+                                                "may run per wall minute, all askers together (a larger one is "
+                                                "refused)")  # fmt: skip
 
 
 class ControlConfig(_Component):
@@ -169,10 +178,12 @@ class MeshSettings(BaseSettings):
     connect_timeout_s: float = Field(30.0, ge=0, description="agents retry the router this long, then exit")
     bus_auth: bool = Field(True, description="user/password per role and the router's access control (docs/mesh.md, "
                            "Security); off only for a router on loopback")
-    secrets_dir: Path | None = Field(None, description="the run's bus passwords and TLS files (default "
-                                     "DATA_DIR/secrets)")
+    secrets_dir: Path | None = Field(None, description="the run's secrets, one folder per role, and TLS files "
+                                     "(default DATA_DIR/secrets; docs/mesh.md, Security)")
     bus_password: SecretStr | None = Field(None, description="this process's bus password instead of the file in "
                                            "SECRETS_DIR (an agent on another host)")
+    bus_password_file: Path | None = Field(None, description="the file holding this process's bus password (what "
+                                           "`lcmesh demo` gives each child: its own role's file alone)")
     bus_tls_hosts: EndpointList = Field([], description="extra names the router certificate is valid for (tls/ "
                                          "endpoints)")
     system: str = "lcopt-5"
@@ -265,7 +276,7 @@ class MeshSettings(BaseSettings):
         """These settings as ``LCMESH_*`` variables, for child processes (nested configs as JSON)."""
         env = {}
         for name, value in self:
-            if value is None or name == "bus_password":  # a secret never travels in a child's environment
+            if value is None or name in PER_PROCESS:
                 continue
             if isinstance(value, BaseModel):
                 text = value.model_dump_json()

@@ -6,6 +6,7 @@ per step); ``plant.out[name]`` are views into the output buffer, shaped per bloc
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -156,14 +157,20 @@ class Plant:
         _write_inputs(self._deviations, self.deviations, changes)
 
     # --- state -----------------------------------------------------------
-    def spin_up(self, blade_power_w: np.ndarray, wet_bulb_k: float, action: PlantAction, hours: float = 1.0) -> None:
-        """Run at constant inputs past the start-up transient, and make that the reset state."""
+    def spin_up(self, blade_power_w: np.ndarray, wet_bulb_k: float, action: PlantAction, hours: float = 1.0,
+                stop: threading.Event | None = None) -> bool:  # fmt: skip
+        """Run at constant inputs past the start-up transient, and make that the reset state.
+
+        False, with the reset state untouched, if `stop` is set before the end (checked before every step)."""
         for _ in range(int(round(hours * 3600 / self.step_s))):
+            if stop is not None and stop.is_set():
+                return False
             self.step(blade_power_w, wet_bulb_k, action)
         if self._initial is not None:
             self.runner.free_state(self._initial)
         self._initial = self.runner.save_state()
         self.n_steps_done = 0
+        return True
 
     def restart(self) -> dict[str, np.ndarray]:
         """Back to the FMU's initial state, forgetting any spun-up state; the faults and deviations set stay set.

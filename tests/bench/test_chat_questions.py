@@ -10,6 +10,7 @@ from importlib import resources
 import pytest
 
 from lcmesh.mesh.agents.ui.planner import PLANNER_TOOLS as TOOLS
+from lcmesh.mesh.tools import registry
 
 TAGS = {
     "paraphrase", "typo", "multi", "lang", "refusal", "injection", "command", "whatif", "history", "rank", "compare",
@@ -75,3 +76,23 @@ def test_row_is_well_formed(row):
             default = model.model_fields[name].default
             assert value != default, (call, name)
         assert req is not None
+
+
+D_ROWS = _rows("chat_questions_d.jsonl")
+
+
+def test_set_d_is_a_third_authors_test_set():
+    """Set d (issue 34), by an author who saw only the tool specs: test only, apart from the other sets, every
+    expected call valid under its tool's request model, a refusal without calls."""
+    assert len(D_ROWS) >= 300 and {r["split"] for r in D_ROWS} == {"test"}
+    assert len({r["id"] for r in D_ROWS}) == len(D_ROWS)
+    others = {r["question"].strip().lower() for r in ROWS + B_ROWS + _rows("chat_questions_c.jsonl")}
+    # written apart: short common questions may repeat another set's text word for word (10 at writing)
+    assert len({r["question"].strip().lower() for r in D_ROWS} & others) <= 0.03 * len(D_ROWS)
+    langs = Counter(r["lang"] for r in D_ROWS)
+    assert set(langs) <= {"en", "es", "de", "fr"} and langs["es"] + langs["de"] + langs["fr"] >= 0.4 * len(D_ROWS)
+    for row in D_ROWS:
+        assert set(row) == KEYS and isinstance(row["refuse"], bool), row["id"]
+        assert (row["calls"] == []) == row["refuse"], row["id"]
+        for call in row["calls"]:
+            registry.TOOLS[call["tool"]].request_model.model_validate(call["args"])  # any served tool, physics too

@@ -29,10 +29,10 @@ def test_typed_publish_subscribe(client, mesh_settings):
     try:
         other.subscribe(keys.events("test"), AgentEvent, got.append)
         time.sleep(0.2)
-        client.publish(keys.events("test"), _event("hello"))
+        client.publish(keys.events("test", "sensor"), _event("hello"))
         assert wait_until(lambda: got, 5)
         assert got[0].detail == "hello" and got[0].source == "tester"
-        assert other.counters.snapshot()["msgs_in"]["events"] == 1
+        assert other.counters.snapshot()["msgs_in"]["events/*"] == 1
     finally:
         other.close()
 
@@ -51,14 +51,14 @@ def test_garbage_is_dropped_and_counted_and_a_failing_handler_never_raises(clien
     try:
         other.subscribe(keys.events("test"), AgentEvent, handler)
         time.sleep(0.2)
-        key = keys.events("test")
+        key = keys.events("test", "sensor")
         for junk in (b"", b"\xff\xfe", b"not json", b'{"kind": "started"}', b"[1,2,3]", b'{"schema_version": 99}'):
             client.publish_raw(key, junk)
         client.publish(key, _event("boom"))
         client.publish(key, _event("after"))
         assert wait_until(lambda: got, 5)
         snap = other.counters.snapshot()
-        assert snap["invalid"]["events"] == 6
+        assert snap["invalid"]["events/*"] == 6
         assert snap["handler_errors"] == 1 and len(errors) == 1
         assert [e.detail for e in got] == ["after"]
     finally:

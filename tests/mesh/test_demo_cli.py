@@ -45,3 +45,25 @@ def test_agent_check_sees_a_live_agent(tmp_path):
         router.close()
     assert ok.returncode == 0 and "alive/sensor/sensor" in ok.stderr + ok.stdout
     assert missing.returncode == 1
+
+
+def test_a_long_error_line_stays_one_line_in_a_log_file(tmp_path):
+    """The demo's output to a file (its log under systemd, a bench's .out) keeps each message on one line, however long:
+    the console soft-wraps, it does not break lines at 80 columns ("held by pid\\n9142")."""
+    import socket
+
+    log_path = tmp_path / "demo.log"
+    env = {k: v for k, v in os.environ.items() if k != "COLUMNS" and not k.startswith("LCMESH_")}
+    with socket.socket() as held, open(log_path, "wb") as log:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        done = subprocess.run([LCMESH, "demo", "--port", str(port), "--ui-port", str(free_port()), "--data-dir",
+                               str(tmp_path / "mesh")], env=env, stdout=log, stderr=subprocess.STDOUT,
+                              stdin=subprocess.DEVNULL, timeout=120)  # fmt: skip
+    lines = log_path.read_text().splitlines()
+    assert done.returncode == 3, lines
+    said = [line for line in lines if "can not run" in line]
+    assert len(said) == 1 and f"held by pid {os.getpid()} (" in said[0] and said[0].rstrip().endswith("another port"), \
+        lines  # fmt: skip
+    assert len(said[0]) > 80

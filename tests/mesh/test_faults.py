@@ -51,7 +51,7 @@ class Mesh:
         # the speed factor comes as a command-line option: an audited change to the configuration
         self.demo = subprocess.Popen([lcmesh, "demo", "--speed-factor", str(SPEED)], env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)  # fmt: skip
-        self.bus = Bus.connect(s, "faults", role="ui", timeout_s=120)  # reads all; asks cmd/* as the UI may
+        self.bus = Bus.connect(s, "faults", role="orchestration", timeout_s=120)  # reads all; asks cmd/* as the orchestrator may
         self.bus.watch_liveliness(keys.alive_all(s.site), self._on_token)
         self.bus.subscribe(keys.events(s.site), AgentEvent, lambda e: self._add(self.events, e))
         self.bus.subscribe(keys.applied(s.site), AppliedAction, lambda a: self._add(self.applied, a))
@@ -171,7 +171,7 @@ def test_garbage_on_every_key_is_dropped_and_counted(mesh):
     s, bus = mesh.settings, mesh.bus
     subscribed = [(keys.plant_state(s.site), "sensor"), (keys.proposal(s.site), "control"),
                   (keys.applied(s.site), "sensor"), (keys.config(s.site, "all"), "configuration"),
-                  (keys.agent_stats(s.site, "monitor-ghost"), "monitor"), (keys.events(s.site), "ui"),
+                  (keys.agent_stats(s.site, "monitor-ghost"), "monitor"), (keys.events(s.site, "ui"), "ui"),
                   (keys.alerts(s.site), "maintenance"), (keys.explain(s.site, "x1"), "control"),
                   (keys.monitor_report(s.site), "monitor")]  # fmt: skip
     junk = [b"", b"\x00\xff", b"{", b"[]", b'{"schema_version": 1}', b'{"source": "x", "step": -1}']
@@ -186,7 +186,7 @@ def test_garbage_on_every_key_is_dropped_and_counted(mesh):
             other.close()
     queried = [keys.config(s.site, n) for n in ("all", "controller", "guardrails")] + [
         keys.cmd(s.site, "sensor", "inject_fault"), keys.cmd(s.site, "orchestration", "status"),
-        keys.tool(s.site, "whatif"), keys.tool(s.site, "heat_balance")]  # fmt: skip
+        keys.tool(s.site, "whatif", "orchestration"), keys.tool(s.site, "heat_balance", "orchestration")]  # fmt: skip
     for key in queried:
         for payload in junk[1:]:
             bus.query(key, payload, timeout_s=2.0)

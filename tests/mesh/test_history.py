@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 import sqlite3
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -105,3 +110,72 @@ def test_who_wrote_an_explanation_is_kept_and_an_older_file_gains_the_columns(tm
     assert by_id["d1"]["explanation_written_by"] == "llm" and by_id["d1"]["explanation_llm_part"] == "what-if"
     assert by_id["d2"]["explanation_written_by"] == "renderer" and by_id["d2"]["explanation_why_renderer"] == "timeout"
     HistoryWriter(path).close()  # opening again adds nothing twice
+
+
+_READ_ONLY_PROCESS = """
+import sys
+from lcmesh.mesh.history import HistoryReader, HistoryWriter
+from lcmesh.mesh.messages import AgentEvent
+print(len(HistoryReader(sys.argv[1]).agent_events(limit=1000)))
+try:
+    HistoryWriter(sys.argv[1]).add_event(AgentEvent(source="ui", kind="warning", role="ui", agent_id="ui"))
+except Exception as exc:
+    print("no write:", exc)
+"""
+
+
+def _read_as_a_reader(path: Path) -> list[str]:
+    """What a process that may only read `path`'s folder sees: a read-only bind mount as root (what compose's ``:ro``
+    does), the folder and files made read-only with chmod otherwise."""
+    argv = [sys.executable, "-c", _READ_ONLY_PROCESS, str(path)]
+    folder = str(path.parent)
+    if os.geteuid() == 0:
+        if shutil.which("unshare") is None:
+            pytest.skip("root without unshare: no way to make a read-only folder for root")
+        argv = ["unshare", "-m", "sh", "-c", 'mount --bind -o ro "$0" "$0" && exec "$@"', folder, *argv]
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+        if "mount" in done.stderr and done.returncode != 0:
+            pytest.skip(f"no read-only bind mount here: {done.stderr.strip()}")
+    else:
+        files = [p for p in path.parent.iterdir()]
+        for p in files:
+            os.chmod(p, 0o444)
+        os.chmod(folder, 0o555)
+        try:
+            done = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+        finally:
+            os.chmod(folder, 0o700)
+            for p in files:
+                os.chmod(p, 0o600)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.splitlines()
+
+
+def test_readers_on_a_read_only_folder_read_while_the_writer_runs_and_after_it_closed(tmp_path):
+    """Compose mounts history ``:ro`` for every agent but the Sensor: they read it live (WAL, the writer's -shm)
+    and once the writer has closed the file (SQLite removed -wal and -shm, which they can not create), and they
+    can not write a row."""
+    path = tmp_path / "history" / "history.sqlite"
+    w = HistoryWriter(path)
+    for i in range(3):
+        w.add_event(AgentEvent(source="sensor", kind="started", role="sensor", agent_id="sensor", detail=f"e{i}"))
+    live = _read_as_a_reader(path)
+    assert live[0] == "3" and live[1].startswith("no write:"), live
+    w.add_event(AgentEvent(source="sensor", kind="warning", role="sensor", agent_id="sensor"))
+    w.close()
+    assert not path.with_name(path.name + "-wal").exists()
+    closed = _read_as_a_reader(path)
+    assert closed[0] == "4" and closed[1].startswith("no write:"), closed
+    assert len(HistoryReader(path).agent_events()) == 4, "nothing was written by the readers"
+
+
+def test_a_config_version_is_audited_once(tmp_path):
+    """The Sensor records each config document it sees; one published again (a restarted Configuration agent)
+    keeps its first audit row."""
+    w = HistoryWriter(tmp_path / "h.sqlite")
+    doc = ConfigDoc(source="configuration", version=2, config=MeshConfig(speed_factor=120), changed_by="ui/a",
+                    reason="first", changes={"speed_factor": [60.0, 120.0]})
+    w.add_config_change(doc)
+    w.add_config_change(doc.model_copy(update={"changes": {"*": [None, "re-published"]}, "reason": "again"}))
+    rows = HistoryReader(tmp_path / "h.sqlite").config_changes()
+    assert [(r["version"], r["reason"], r["changes"]) for r in rows] == [(2, "first", {"speed_factor": [60.0, 120.0]})]

@@ -13,7 +13,8 @@ def test_keys_follow_the_design_layout():
     assert keys.alerts("s1") == "lcmesh/s1/maintenance/alerts"
     assert keys.monitor_report("s1") == "lcmesh/s1/monitor/report"
     assert keys.config("s1", "guardrails") == "lcmesh/s1/config/guardrails"
-    assert keys.tool("s1", "whatif") == "lcmesh/s1/tools/whatif"
+    assert keys.tool("s1", "whatif", "ui") == "lcmesh/s1/tools/whatif/ui"  # asked as the role (Security)
+    assert keys.tool_served("s1", "whatif") == "lcmesh/s1/tools/whatif/*"
     assert keys.cmd("s1", "sensor", "inject_fault") == "lcmesh/s1/cmd/sensor/inject_fault"
     assert keys.alive("s1", "sensor", "sensor-2") == "lcmesh/s1/alive/sensor/sensor-2"
 

@@ -12,27 +12,37 @@ import json
 import os
 import stat
 import time
+from pathlib import Path
 
 import pytest
 from pydantic import SecretStr
 
 from lcmesh.mesh import keys, security
+from lcmesh.mesh.agents.base import Agent
 from lcmesh.mesh.agents.configuration import ConfigurationAgent
 from lcmesh.mesh.agents.control import ControlAgent
+from lcmesh.mesh.agents.orchestration import OrchestrationAgent
 from lcmesh.mesh.agents.sensor import SensorAgent
 from lcmesh.mesh.bus import Bus, BusError, client_config
-from lcmesh.mesh.history import HistoryReader
+from lcmesh.mesh.demo import Demo
+from lcmesh.mesh.history import HistoryReader, HistoryWriter
 from lcmesh.mesh.messages import (
-    ActionModel, AgentStats, CommandReply, ConfigDoc, ConfigUpdate, FaultRequest, MeshConfig, PlantState, Proposal,
+    ActionModel, AgentEvent, AgentStats, CommandReply, ConfigDoc, ConfigUpdate, FaultRequest, MeshConfig, PlantState,
+    Proposal,
 )  # fmt: skip
+from lcmesh.mesh.processes import agent_env
 from tests.mesh.conftest import free_port, make_settings, wait_until
 
 
 def test_secrets_are_private_and_kept_across_restarts(tmp_path):
     paths = security.ensure_secrets(tmp_path / "s", tls_hosts=["127.0.0.1", "localhost"])
-    files = [paths.dictionary, paths.password("ui"), paths.router_key, paths.ca_key, paths.router_cert]
+    files = [paths.dictionary, paths.password("ui"), paths.router_key, paths.ca_key, paths.router_cert,
+             paths.config_signing_key]  # fmt: skip
     assert all(stat.S_IMODE(os.stat(f).st_mode) == 0o600 for f in files)
-    assert stat.S_IMODE(os.stat(paths.root).st_mode) == 0o700
+    assert stat.S_IMODE(os.stat(paths.root).st_mode) == 0o711, "reach a folder handed to you, list none"
+    assert all(stat.S_IMODE(os.stat(paths.role_dir(r)).st_mode) == 0o700 for r in (*security.ROLES, "router"))
+    assert stat.S_IMODE(os.stat(paths.config_verify_key).st_mode) == 0o644
+    files += [paths.config_verify_key, paths.public_ca_cert]
     before = {f: f.read_bytes() for f in files}
     security.ensure_secrets(tmp_path / "s", tls_hosts=["127.0.0.1", "localhost"])
     assert {f: f.read_bytes() for f in files} == before, "a restarted router must find the same secrets"
@@ -49,7 +59,7 @@ def test_the_acl_grants_each_role_only_its_writes():
     assert [r for r, ks in puts.items() if "config/*" in ks] == ["configuration"]
     assert [r for r, ks in puts.items() if "plant/state" in ks] == ["sensor"]
     cmd = [r for r in security.ROLES if "query" in security.grants(r).get("cmd/*/*", ())]
-    assert cmd == ["orchestration", "ui"]
+    assert cmd == ["orchestration"]
     with pytest.raises(ValueError, match="unknown bus role 'intruder'"):
         security.grants("intruder")
 
@@ -113,6 +123,7 @@ def test_the_sensor_applies_the_control_roles_proposals_only_for_its_own_state(s
 def test_config_documents_and_changes_from_outsiders_change_nothing(start_agent, bus_as, mesh_settings):
     start_agent(ConfigurationAgent)
     control = start_agent(ControlAgent)
+    start_agent(SensorAgent)  # history's only writer: it audits the documents on config/all it would adopt
     site = mesh_settings.site
     assert wait_until(lambda: control.config_doc is not None and control.config_doc.version == 1, 60)
     coup = ConfigDoc(source="configuration", version=1_000_000, changed_by="api@127.0.0.1", reason="coup",
@@ -136,9 +147,9 @@ def test_config_documents_and_changes_from_outsiders_change_nothing(start_agent,
     doc = ui.request(keys.configure(site, "ui"), ConfigDoc, ConfigUpdate(changes={"speed_factor": 250.0}, by="api@x"))
     assert doc.version == 2
     assert wait_until(lambda: control.config_doc.version == 2, 60)
-    audit = HistoryReader(mesh_settings.history_file).config_changes()
-    assert audit[0]["changed_by"] == "ui/api@x" and [r["version"] for r in audit] == [2, 1]
     history = HistoryReader(mesh_settings.history_file)
+    audit = wait_until(lambda: [r for r in history.config_changes() if r["version"] == 2] and history.config_changes())
+    assert audit[0]["changed_by"] == "ui/api@x" and [r["version"] for r in audit] == [2, 1]
     assert wait_until(lambda: any("ignored config version 1000000" in (e["detail"] or "")
                                   for e in history.agent_events(limit=50)), 60)  # fmt: skip
 
@@ -147,10 +158,10 @@ def test_commands_and_stats_are_refused_to_the_wrong_roles(start_agent, bus_as, 
     sensor = start_agent(SensorAgent)
     site = mesh_settings.site
     inject = FaultRequest(kind="pump_degradation", cabinet=1, value=0.9).model_dump_json()
-    for role in ("control", "maintenance", "monitor", "configuration", "operator"):
+    for role in ("control", "maintenance", "monitor", "configuration", "operator", "ui"):
         assert bus_as(role).query(keys.cmd(site, "sensor", "inject_fault"), inject, timeout_s=1.0) == [], role
     assert not sensor.twin.plant.faults.active, "no fault was injected"
-    assert bus_as("ui").request(keys.cmd(site, "sensor", "status"), CommandReply).ok
+    assert bus_as("orchestration").request(keys.cmd(site, "sensor", "status"), CommandReply).ok
     seen = []
     bus_as("monitor").subscribe(keys.agent_stats_all(site), AgentStats, seen.append)
     forged = AgentStats(source="orchestration", role="orchestration", agent_id="orchestration", pid=1, host="h",
@@ -198,6 +209,114 @@ def test_a_router_beyond_loopback_needs_authentication(tmp_path):
 
 
 def test_child_processes_never_get_the_password_in_their_environment(tmp_path):
-    settings = make_settings(tmp_path, bus_password="s3cret-value-for-this-agent")
+    settings = make_settings(tmp_path, bus_password="s3cret-value-for-this-agent", bus_password_file=tmp_path / "pw")
     env = settings.to_env()
     assert "LCMESH_BUS_PASSWORD" not in env and "s3cret" not in json.dumps(env)
+    assert "LCMESH_BUS_PASSWORD_FILE" not in env, "each child is given its own role's file, not this process's"
+
+
+def test_each_role_folder_holds_that_roles_secrets_alone(tmp_path):
+    """A deployment hands each role its own folder: nothing in it is another role's (or every role's) secret."""
+    root = tmp_path / "s"
+    (root / "bus").mkdir(parents=True)  # a run from before per-role folders: every password in one place
+    (root / "bus" / "control.password").write_text("kept-from-the-last-run")
+    paths = security.ensure_secrets(root)
+    assert security.read_password(root, "control") == "kept-from-the-last-run", "agents elsewhere keep working"
+    assert not (root / "bus").exists(), "the folder holding every password is gone"
+    passwords = {r: paths.password(r).read_text() for r in (*security.ROLES, "router")}
+    for role in security.ROLES:
+        held = " ".join(p.read_text(errors="replace") for p in paths.role_dir(role).rglob("*") if p.is_file())
+        assert [r for r, pw in passwords.items() if pw in held] == [role], role
+    assert sorted(p.name for p in paths.public_dir.iterdir()) == ["config-signing.pub"]
+
+
+def test_config_signatures_cover_the_version_and_the_config(tmp_path):
+    security.ensure_secrets(tmp_path)
+    signer, verifier = security.load_config_signer(tmp_path), security.load_config_verifier(tmp_path)
+    config = MeshConfig(controller="g36").model_dump(mode="json")
+    signature = signer.sign(7, config)
+    assert verifier.valid(7, config, signature)
+    assert not verifier.valid(8, config, signature), "a signature is not valid for another version"
+    wider = {**config, "speed_factor": config["speed_factor"] * 2}
+    assert not verifier.valid(7, wider, signature), "nor for other content"
+    assert not verifier.valid(7, config, "not base64!") and not verifier.valid(7, config, "")
+    security.ensure_secrets(tmp_path / "other")  # another run's key: its signatures do not pass here
+    assert not verifier.valid(7, config, security.load_config_signer(tmp_path / "other").sign(7, config))
+
+
+class _Follower(Agent):
+    """The smallest agent that follows the configuration (what the Sensor, Control and UI do)."""
+
+    role = "monitor"
+
+    def on_start(self) -> None:
+        self.watch_config()
+
+
+def test_a_forged_config_doc_with_a_matching_history_row_is_refused(start_agent, bus_as, mesh_settings):
+    """The configuration role's password and a history row that audits the forgery: still refused (no signature by
+    the Configuration agent's key); the same document signed with that key is adopted."""
+    follower = start_agent(_Follower)
+    wide = MeshConfig(controller="static", speed_factor=1.0).model_dump(mode="json")
+    wide["guardrails"] = {**wide["guardrails"], "supply_temp_max_k": 353.15, "supply_temp_rate_k": 30.0}
+    forged = ConfigDoc(source="configuration", version=1_000_000, changed_by="ui/api@x", reason="coup",
+                       config=MeshConfig.model_validate(wide))  # fmt: skip
+    writer = HistoryWriter(mesh_settings.history_file)
+    writer.add_config_change(forged, {"guardrails.supply_temp_rate_k": [2.0, 30.0]})  # what _unaudited checked
+    writer.close()
+    thief = bus_as("configuration", "configuration-thief")
+    seen = []
+    thief.subscribe(keys.events(mesh_settings.site, "monitor"), AgentEvent, seen.append)
+    time.sleep(0.3)  # the subscription reaches the router
+    thief.publish(keys.config(mesh_settings.site, "all"), forged, block=True)
+    assert wait_until(lambda: any("1000000" in e.detail and "not signed" in e.detail for e in seen), 60), seen
+    assert follower.config_doc is None and follower.config.controller == "g36"
+    signed = forged.model_copy(update={"version": 1_000_001, "signature": security.load_config_signer(
+        mesh_settings.secrets_path).sign(1_000_001, forged.config.model_dump(mode="json"))})
+    thief.publish(keys.config(mesh_settings.site, "all"), signed, block=True)
+    assert wait_until(lambda: follower.config_doc is not None and follower.config_doc.version == 1_000_001, 60)
+    assert follower.config.controller == "static"
+
+
+def test_a_bus_password_file_names_one_roles_password(router, mesh_settings):
+    paths = security.SecretPaths(mesh_settings.secrets_path)
+    own = mesh_settings.model_copy(update={"bus_password_file": paths.password("control")})
+    Bus.connect(own, "control-file", role="control", timeout_s=10).close()
+    other = mesh_settings.model_copy(update={"bus_password_file": paths.password("ui")})
+    with pytest.raises(BusError, match="check that this role's password"):
+        Bus.connect(other, "control-file", role="control", timeout_s=0.5)
+    missing = mesh_settings.model_copy(update={"bus_password_file": paths.root / "nowhere"})
+    with pytest.raises(BusError, match="`LCMESH_BUS_PASSWORD_FILE` = .*nowhere can not be read"):
+        client_config(missing, "control")
+
+
+SECRET_ENV = {"LCMESH_BUS_PASSWORD": "pw-of-the-demo-process", "LCMESH_API_TOKEN": "the-ui-api-token-0123456789",
+              "LCMESH_LLM_API_KEY": "sk-the-llm-endpoint-key"}  # fmt: skip
+
+
+def test_each_child_gets_only_its_own_roles_secrets(tmp_path, monkeypatch):
+    """`lcmesh demo` (and the systemd unit that runs it): the router and the orchestrator get no secret in their
+    environment; each agent its own role's password file, the UI alone the API token, control and UI the LLM key."""
+    for name, value in SECRET_ENV.items():
+        monkeypatch.setenv(name, value)
+    settings = make_settings(tmp_path)
+    demo = Demo(settings, say=lambda _: None)
+    paths = security.ensure_secrets(settings.secrets_path)
+    security.store_env_secrets(settings.secrets_path, dict(os.environ))
+    assert not set(SECRET_ENV.values()) & set(demo.env.values()), "the router's environment and the children's base"
+    orchestration = agent_env(demo.env, "orchestration", settings.secrets_path)
+    assert not set(SECRET_ENV.values()) & set(orchestration.values())
+    for name in SECRET_ENV:  # the orchestrator's own process has none of them (asserted above)
+        monkeypatch.delenv(name)
+    orchestrator = OrchestrationAgent(settings)
+    for role in ("configuration", "sensor", "control", "maintenance", "monitor", "ui"):
+        env = orchestrator.child_env(role)
+        assert env["LCMESH_BUS_PASSWORD_FILE"] == str(paths.password(role))
+        assert "LCMESH_BUS_PASSWORD" not in env
+        assert ("LCMESH_LLM_API_KEY" in env) == (role in ("control", "ui")), role
+        assert ("LCMESH_API_TOKEN_FILE" in env) == (role == "ui"), role
+        leaked = {k for k, v in env.items() if v in SECRET_ENV.values()}
+        assert leaked <= ({"LCMESH_LLM_API_KEY"} if role in ("control", "ui") else set()), (role, leaked)
+    assert Path(orchestrator.child_env("ui")["LCMESH_API_TOKEN_FILE"]).read_text() == SECRET_ENV["LCMESH_API_TOKEN"]
+    security.store_env_secrets(settings.secrets_path, dict(os.environ))  # the next start, no token set
+    assert not paths.api_token.exists(), "a token taken away is gone at the next start"

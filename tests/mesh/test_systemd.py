@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from lcmesh.mesh.processes import SECRET_VARIABLES
 from lcmesh.mesh.service import EXIT_BUSY
 
 UNIT = Path(__file__).resolve().parents[2] / "deploy" / "systemd" / "lcmesh.service"
@@ -56,3 +57,13 @@ def test_the_unit_runs_the_demo_and_does_not_restart_a_busy_one():
     assert service["KillMode"] == "mixed", "SIGTERM to the demo alone: it stops its children in order"
     state_dir = service["StateDirectory"]
     assert f"--data-dir /var/lib/{state_dir}" in service["ExecStart"], "the data dir is the unit's state directory"
+
+
+def test_the_unit_names_no_secret_and_keeps_its_state_private():
+    """Secrets reach the demo through the 0600 env file alone; it hands each child its own role's files
+    (tests/mesh/test_security.py::test_each_child_gets_only_its_own_roles_secrets) in a 0700 state folder."""
+    service = _service_section()
+    lines = [line for line in UNIT.read_text().splitlines() if line.startswith(("Environment=", "ExecStart="))]
+    assert not [line for line in lines for name in SECRET_VARIABLES if name in line], lines
+    assert service["EnvironmentFile"].lstrip("-").startswith("/etc/lcmesh/")
+    assert service["StateDirectoryMode"] == "0700" and service["UMask"] == "0077"

@@ -7,9 +7,12 @@ with a ``ConfigUpdate`` payload: ``changes`` is a partial MeshConfig (nested dic
 a section's key only that section may change. The router lets only the role named in the key
 reach it (``ui`` and ``operator``), so the audit's ``changed_by`` starts with that authenticated
 role; the update's own ``by`` (who the UI vouches for) follows it. The new version is validated
-(pydantic, the controller registry, the guardrails against the plant), written to the store file atomically, audited in
-history's ``config_changes`` with the diff, and published on ``config/all``. Errors name the
-field and what would be valid.
+(pydantic, the controller registry, the guardrails against the plant), written to the store file atomically
+with the diff (``ConfigDoc.changes``: the Sensor records it in history's ``config_changes``), signed
+with the Configuration agent's Ed25519 key
+(``SECRETS_DIR/configuration/config-signing.key``: agents adopt only a document whose signature
+verifies, ``Agent._unsigned``) and published on ``config/all``. Errors name the field and what
+would be valid.
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from pydantic import ValidationError
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent, default_config
 from lcmesh.mesh.bus import QueryError
-from lcmesh.mesh.history import HistoryReader, HistoryWriter
+from lcmesh.mesh.history import HistoryReader
+from lcmesh.mesh.security import ConfigSigner, SecretPaths, load_config_signer
 from lcmesh.mesh.security import write_secret as write_private
 from lcmesh.mesh.messages import CONFIG_SECTIONS, ConfigDoc, ConfigUpdate, MeshConfig
 from lcmesh.mesh.tools.guardrails import check_action
@@ -71,40 +75,52 @@ def _diff(old: Any, new: Any, path: str = "") -> dict[str, list]:
 class ConfigStore:
     """The configuration's versions: validation, persistence, audit."""
 
-    def __init__(self, path: Path, seed: MeshConfig, system: SystemDescription | None, history: HistoryWriter | None,
-                 controller_plugins: Collection[str] = ()):  # fmt: skip
-        self.path, self.system, self.history = Path(path), system, history
+    def __init__(self, path: Path, seed: MeshConfig, system: SystemDescription | None, history_path: Path | None,
+                 controller_plugins: Collection[str] = (), signer: ConfigSigner | None = None):  # fmt: skip
+        self.path, self.system, self.history_path = Path(path), system, history_path  # history: read only
         self.controller_plugins = tuple(controller_plugins)  # third-party controllers the mesh may load
+        self.signer = signer  # None: documents go out unsigned (a mesh without bus authentication)
         self._lock = threading.Lock()
         if self.path.exists():
-            self.doc = ConfigDoc.model_validate_json(self.path.read_text())
+            self.doc = self._signed(ConfigDoc.model_validate_json(self.path.read_text()))
             self._check_against_history()
         else:
-            self.doc = ConfigDoc(source="configuration", version=1, config=self.validate(seed.model_dump()),
-                                 changed_by="settings",
-                                 reason="initial configuration from LCMESH_* settings")  # fmt: skip
-            self._persist(self.doc, {"*": [None, "initial"]})
+            seeded = ConfigDoc(source="configuration", version=1, config=self.validate(seed.model_dump()),
+                               changed_by="settings", reason="initial configuration from LCMESH_* settings")
+            self.doc = self._signed(seeded)
+            self._check_against_history(new=True)
 
-    def _check_against_history(self) -> None:
-        """Versions never go back and never jump: the audited history is the reference, not the file alone."""
-        if self.history is None or not Path(self.history.path).exists():
-            return
-        reader = HistoryReader(self.history.path)
-        try:
-            rows = reader.config_changes(limit=1)
-        finally:
-            reader.close()
-        if not rows or rows[0]["version"] < self.doc.version:  # a new history file: audit what the store holds
-            self.history.add_config_change(self.doc, {"*": [None, f"loaded from {self.path}"]})
-            return
-        audited = int(rows[0]["version"])
-        if self.doc.version != audited or rows[0]["config"] != self.doc.config.model_dump(mode="json"):
-            log.warning("%s holds version %d but history's latest audited version is %d (or differs); using "
-                        "history's", self.path, self.doc.version, audited)  # fmt: skip
-            config = self.validate(rows[0]["config"])
-            self.doc = ConfigDoc(source="configuration", version=audited, config=config,
-                                 changed_by=rows[0].get("changed_by") or "history", reason=rows[0].get("reason") or "")
-            write_private(self.path, self.doc.model_dump_json(indent=2))
+    def _signed(self, doc: ConfigDoc) -> ConfigDoc:
+        if self.signer is None:
+            return doc
+        return doc.model_copy(update={"signature": self.signer.sign(doc.version, doc.config.model_dump(mode="json"))})
+
+    def _check_against_history(self, new: bool = False) -> None:
+        """Versions never go back and never jump; the content is this agent's own store's, never history's.
+
+        History is written by another agent (the Sensor) and its rows carry no signature, so a version
+        there newer than the store (or the same with other content) is not adopted: the store's content
+        is issued again after it, signed and audited. A `new` store (none on disk yet) is persisted here.
+        """
+        rows = []
+        if self.history_path is not None and Path(self.history_path).exists():
+            reader = HistoryReader(self.history_path)
+            try:
+                rows = reader.config_changes(limit=1)
+            finally:
+                reader.close()
+        ours = self.doc.config.model_dump(mode="json")
+        if rows and (rows[0]["version"] > self.doc.version or
+                     (rows[0]["version"] == self.doc.version and rows[0]["config"] != ours)):  # fmt: skip
+            audited = int(rows[0]["version"])
+            log.warning("history's latest audited version %d is not the one %s holds (version %d); issuing the "
+                        "store's content as version %d", audited, self.path, self.doc.version, audited + 1)  # fmt: skip
+            self.doc = self._signed(ConfigDoc(source="configuration", version=audited + 1, config=self.doc.config,
+                                              changed_by="configuration", reason=f"the content of {self.path}, "
+                                              f"issued after history's version {audited}, which it does not hold"))
+            self.doc = self._persist(self.doc, {"*": [None, f"re-issued from {self.path}"]})
+        elif new:
+            self.doc = self._persist(self.doc, {"*": [None, "initial"]})
 
     def validate(self, data: dict) -> MeshConfig:
         """A MeshConfig from `data`, checked against the controller registry (and allowed plugins) and the plant."""
@@ -147,17 +163,18 @@ class ConfigStore:
             changes = _diff(old, config.model_dump(mode="json"))
             if not changes:
                 return current, {}
-            doc = ConfigDoc(source="configuration", version=current.version + 1, config=config,
-                            changed_by=f"{role}/{update.by}", reason=update.reason)  # fmt: skip
-            self._persist(doc, changes)
+            doc = self._signed(ConfigDoc(source="configuration", version=current.version + 1, config=config,
+                                         changed_by=f"{role}/{update.by}", reason=update.reason))  # fmt: skip
+            doc = self._persist(doc, changes)
             self.doc = doc
         return doc, changes
 
-    def _persist(self, doc: ConfigDoc, changes: dict) -> None:
+    def _persist(self, doc: ConfigDoc, changes: dict) -> ConfigDoc:
+        """`doc` carrying `changes`, written to the store file; the Sensor audits it in history from ``config/all``."""
+        doc = doc.model_copy(update={"changes": changes})
         self.path.parent.mkdir(parents=True, exist_ok=True)
         write_private(self.path, doc.model_dump_json(indent=2))
-        if self.history is not None:
-            self.history.add_config_change(doc, changes)
+        return doc
 
 
 class ConfigurationAgent(Agent):
@@ -170,14 +187,17 @@ class ConfigurationAgent(Agent):
 
     def on_start(self) -> None:
         s = self.settings
-        self.history = HistoryWriter(s.history_file)
         try:
             system = load_system(s.system)
         except Exception as exc:  # the store still works; plant-specific checks are skipped
             log.warning("system %r does not load (%s); guardrails are not checked against a plant", s.system, exc)
             system = None
         path = s.configuration.store_path or s.data_dir / "config.json"
-        self.store = ConfigStore(path, default_config(s), system, self.history, s.allowed_controller_plugins)
+        signer = load_config_signer(s.secrets_path)
+        if signer is None and s.bus_auth:
+            raise RuntimeError(f"no config signing key at {SecretPaths(s.secrets_path).config_signing_key}: the "
+                               "router creates it with the run's secrets; without it no agent adopts a configuration")
+        self.store = ConfigStore(path, default_config(s), system, s.history_file, s.allowed_controller_plugins, signer)
         log.info("configuration version %d from %s", self.store.doc.version, path)
         for name in CONFIG_SECTIONS:
             self.serve(keys.config(self.site, name), lambda payload, name=name: self._read(name, payload))

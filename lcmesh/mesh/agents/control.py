@@ -4,8 +4,8 @@ A proposal carries a decision id, the controller's name and version, the action,
 facts behind it (hottest branch, setpoints and their changes: cheap, so they ride on the
 critical path). Right after publishing it computes the full grounding facts (the toolbox's
 ``cabinet_decision_facts`` for the cabinet with the hottest branch, or the controller's own
-``explain_facts``) and the deterministic text, and writes that explanation, under the same
-decision id, to history and to ``explain/{decision_id}``. With ``explainer = "llm"`` every decision
+``explain_facts``) and the deterministic text, and publishes that explanation, under the same
+decision id, on ``explain/{decision_id}`` (the Sensor records it in history). With ``explainer = "llm"`` every decision
 still gets that rendering, and the newest rendered decision goes on to the local LLM (a thread of its
 own, at ``explain_level``: short, the rendering and the LLM's WHAT IF section; or detailed) with the
 toolbox's what-if facts; the judge checks its text, which is published over the rendering, under the
@@ -37,7 +37,6 @@ import numpy as np
 from lcmesh.llm.explainer import TARGET_S
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent, LatestSlot
-from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import (
     ActionModel, AppliedAction, Explanation, FactModel, MeshConfig, PlantState, Proposal, new_id,
     plant_state_to_observation, utc_now,
@@ -177,7 +176,6 @@ class ControlAgent(Agent):
 
     def on_start(self) -> None:
         self.system = load_system(self.settings.system)
-        self.history = HistoryWriter(self.settings.history_file) if self.cfg.explain else None
         self.watch_config(self._on_config)
         self._use_controller(self.config.controller)
         self.subscribe(keys.applied(self.site, self.cfg.loop), AppliedAction, self._on_applied)
@@ -389,10 +387,10 @@ class ControlAgent(Agent):
                 self._on_handler_error("explain-llm", exc)
                 continue
             if explanation is not None:
-                self._publish_explanation(explanation)  # in history before it is counted: the count never runs ahead
+                self._publish_explanation(explanation)
             self._count_llm_explanation(explanation is not None, seconds, why)
 
     def _publish_explanation(self, explanation: Explanation) -> None:
-        self.history.add_explanation(explanation)
+        """On ``explain/{decision_id}``; the Sensor records it in history."""
         self.bus.publish(keys.explain(self.site, explanation.decision_id), explanation, block=True)
         self.tally["explanations"] += 1

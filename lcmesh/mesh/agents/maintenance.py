@@ -3,8 +3,8 @@
 It feeds each state (and the action applied in the step that led to it) to
 ``lcmesh.mesh.tools.maintenance.FaultDetector`` and turns its active findings into alerts: one
 ``raised`` when a (kind, location) finding starts or gets more severe, one ``cleared`` when it
-has been absent for ``clear_after_updates`` updates. Alerts go to history before the bus. A
-restarted agent reloads the alerts still active in history, so it neither repeats nor forgets them.
+has been absent for ``clear_after_updates`` updates. The Sensor records the alerts in history. A
+restarted agent reloads the alerts still active in history (read-only), so it neither repeats nor forgets them.
 If the detector module is not installed yet, the agent retries the import every few seconds.
 """
 
@@ -18,7 +18,7 @@ import time
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent, LatestSlot
-from lcmesh.mesh.history import HistoryWriter
+from lcmesh.mesh.history import HistoryReader
 from lcmesh.mesh.messages import Alert, AppliedAction, PlantState, new_id, plant_state_to_observation
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import load_system
@@ -51,14 +51,24 @@ class MaintenanceAgent(Agent):
 
     def on_start(self) -> None:
         self.system = load_system(self.settings.system)
-        self.history = HistoryWriter(self.settings.history_file)
-        for row in self.history.reader().alerts(active_only=True, limit=10_000):
-            self.active[(row["kind"], row["location"])] = _Active(row["alert_id"], row["severity"],
-                                                                   -RESTORED_GRACE_UPDATES)  # fmt: skip
+        self._restore_active_alerts()
         self._load_detector()
         self.subscribe(keys.applied_all(self.site), AppliedAction, self._on_applied)
         self.subscribe(keys.plant_state(self.site), PlantState, self._slot.put, latest=True)
         self.spawn("watch", self._loop)
+
+    def _restore_active_alerts(self) -> None:
+        """The alerts still raised in history (read-only: the Sensor records the alerts this agent publishes)."""
+        if not self.settings.history_file.exists():
+            return
+        reader = HistoryReader(self.settings.history_file)
+        try:
+            rows = reader.alerts(active_only=True, limit=10_000)
+        finally:
+            reader.close()
+        for row in rows:
+            self.active[(row["kind"], row["location"])] = _Active(row["alert_id"], row["severity"],
+                                                                   -RESTORED_GRACE_UPDATES)  # fmt: skip
 
     def details(self) -> dict:
         return {"detector": self.detector is not None, "active_alerts": len(self.active), **self.tally}
@@ -138,7 +148,6 @@ class MaintenanceAgent(Agent):
         )  # fmt: skip
 
     def _send(self, alert: Alert) -> None:
-        self.history.add_alert(alert)
         self.bus.publish(keys.alerts(self.site), alert, block=True)
         self.tally["raised" if alert.state == "raised" else "cleared"] += 1
         log.info("alert %s: %s %s %s", alert.state, alert.kind, alert.location, alert.message)

@@ -2,7 +2,8 @@
 
 It watches the liveliness tokens (``alive/*/*``), each agent's stats (``monitor/stats/*``) and the
 applied actions (fallback steps), and publishes a ``MonitorReport`` with recommendations on
-``monitor/report`` every ``report_period_s`` (GETs on that key answer the latest report).
+``monitor/report`` every ``report_period_s`` (GETs on that key answer the latest report). Who sent
+a token or stats is read from its key, never from the message (``Agent.subscribe_stats``).
 """
 
 from __future__ import annotations
@@ -77,17 +78,14 @@ class MonitorAgent(Agent):
         self.last_report: MonitorReport | None = None
 
     def on_start(self) -> None:
-        self._declared.append(self.bus.watch_liveliness(keys.alive_all(self.site), self._on_liveliness))
-        self.subscribe(keys.agent_stats_all(self.site), AgentStats, self._on_stats)
+        self.watch_agents(self._on_liveliness)
+        self.subscribe_stats(self._on_stats)
         self.subscribe(keys.applied_all(self.site), AppliedAction, self._on_applied)
         self.spawn("report", self._loop)
 
-    def _on_liveliness(self, key: str, alive: bool) -> None:
-        parsed = keys.parse_alive(key)
-        if parsed is not None:
-            role, agent_id = parsed
-            with self._lock:
-                self._alive[agent_id] = (role, alive, utc_now())
+    def _on_liveliness(self, role: str, agent_id: str, alive: bool) -> None:
+        with self._lock:
+            self._alive[agent_id] = (role, alive, utc_now())
 
     def _on_stats(self, stats: AgentStats) -> None:
         now = time.monotonic()

@@ -14,13 +14,16 @@ and resets once it has run for ``healthy_after_s``. A role whose module does not
 It acts only on processes it started itself or adopted from its predecessor's pid files, each
 checked by pid and start time (a recycled pid is not the agent), never on a pid a bus message
 names: a stats message with another pid for a supervised agent id is counted and reported, not
-acted on. Its agents are tied to it (``processes.tie_to_parent``): when it dies, however it dies,
-they get SIGTERM and stop, so a killed orchestrator leaves no orphan and its successor starts them
-afresh (the Sensor resumes its run from the checkpoint). One that outlived it all the same (stopped,
-or still on its way out) is adopted from its predecessor's pid files and the tokens a liveliness
-query finds, never duplicated. With
-``supervise = false`` (docker compose, where the container engine restarts) it only watches and
-reports.
+acted on. Whose stats or token it is comes from the key (the router lets role R publish only on
+``monitor/stats/R*`` and ``alive/R/*``), never from the message: stats for the Sensor sent by another
+role are dropped and counted (``Agent.subscribe_stats``), so they can not keep a hung Sensor "alive".
+Its agents are tied to it (``processes.tie_to_parent``): when it dies, however it dies, they get
+SIGTERM and stop within ``processes.ORPHAN_STOP_GRACE_S`` (those it stops itself: all at once,
+SIGKILLed after ``stop_timeout_s``), so a killed orchestrator leaves no orphan and its successor
+starts them afresh (the Sensor resumes its run from the checkpoint). One that outlived it all the
+same (stopped, or still on its way out) is adopted from its predecessor's pid files and the tokens
+a liveliness query finds, never duplicated. With ``supervise = false`` (docker compose, where the
+container engine restarts) it only watches and reports.
 """
 
 from __future__ import annotations
@@ -36,9 +39,10 @@ from dataclasses import dataclass
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent
 from lcmesh.mesh.agents.registry import check_role, unavailable_reason
-from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import AgentStats, CommandReply
-from lcmesh.mesh.processes import Child, agent_child, child_env, read_pidfile, same_process, start_ticks
+from lcmesh.mesh.processes import (
+    Child, agent_child, agent_env, read_pidfile, same_process, start_ticks, stop_children,
+)  # fmt: skip
 
 log = logging.getLogger("lcmesh.mesh.agents.orchestration")
 START_GRACE_S = 20.0  # a started agent must declare its token within this, or it is restarted
@@ -87,7 +91,7 @@ class OrchestrationAgent(Agent):
         self.managed: dict[str, Managed] = {}
         self.skipped: dict[str, str] = {}
         self._lock = threading.RLock()
-        self._env = child_env(None, **settings.to_env())
+        self._env = {**os.environ, **settings.to_env()}  # each child gets it less what its role must not see
         self._adopting_done = False
         self._host = socket.gethostname()
         self._connected_since: float | None = None
@@ -95,7 +99,6 @@ class OrchestrationAgent(Agent):
 
     # --- lifecycle ------------------------------------------------------------------------------
     def on_start(self) -> None:
-        self.history = HistoryWriter(self.settings.history_file)
         for role in self.cfg.roles:
             check_role(role)
             if role == self.role:
@@ -107,22 +110,21 @@ class OrchestrationAgent(Agent):
                 self.emit_event("skipped", reason, role=role, agent_id=role)
                 continue
             self.managed[role] = Managed(role=role, agent_id=role)
-        self._declared.append(self.bus.watch_liveliness(keys.alive_all(self.site), self._on_liveliness))
-        self.subscribe(keys.agent_stats_all(self.site), AgentStats, self._on_stats)
+        self.watch_agents(self._on_liveliness)
+        self.subscribe_stats(self._on_stats)
         self.serve(keys.cmd(self.site, self.agent_id, "status"), self._status)
         self.spawn("supervise", self._supervise)
 
     def on_stop(self) -> None:
-        """Stop every supervised agent: all asked at once, each given `stop_timeout_s`, then killed."""
+        """Stop every supervised agent: all asked at once, all given the same `stop_timeout_s`, then killed."""
         if not self.cfg.supervise:
             return
         with self._lock:
             agents = list(reversed(list(self.managed.values())))
+            stop_children([m.child for m in agents if m.child is not None and m.child.popen is not None],
+                          self.cfg.stop_timeout_s)  # fmt: skip
             for m in agents:
-                if m.child is not None:
-                    m.child.terminate()
-            for m in agents:
-                self._terminate(m, graceful=True)
+                self._terminate(m, graceful=True)  # adopted ones, and the pid files
 
     def details(self) -> dict:
         with self._lock:
@@ -133,11 +135,7 @@ class OrchestrationAgent(Agent):
         return CommandReply(ok=True, data=self.details())
 
     # --- what the bus tells -------------------------------------------------------------------------
-    def _on_liveliness(self, key: str, alive: bool) -> None:
-        parsed = keys.parse_alive(key)
-        if parsed is None:
-            return
-        role, agent_id = parsed
+    def _on_liveliness(self, role: str, agent_id: str, alive: bool) -> None:
         with self._lock:
             m = self.managed.get(agent_id)
             if m is None or m.role != role:
@@ -244,7 +242,7 @@ class OrchestrationAgent(Agent):
                 self._died(m, f"adopted process {m.adopted_pid} exited while starting")
             elif judging and now - m.started_at > START_GRACE_S:
                 self._died(m, f"no liveliness token {START_GRACE_S:.0f} s after start", kind="hung")
-        elif self.cfg.supervise and now >= m.next_start_at:
+        elif self.cfg.supervise and now >= m.next_start_at and not self.stopping:  # none after on_stop's snapshot
             self._start(m, now)
 
     def _died(self, m: Managed, reason: str, kind: str = "died") -> None:
@@ -268,11 +266,15 @@ class OrchestrationAgent(Agent):
 
     def _start(self, m: Managed, now: float) -> None:
         log_path = self.settings.log_dir / f"{m.agent_id}.log"
-        m.child = agent_child(m.role, m.agent_id, self._env, log_path).start()
+        m.child = agent_child(m.role, m.agent_id, self.child_env(m.role), log_path).start()
         m.adopted_pid, m.adopted_start, m.started_at, m.state = None, None, now, "starting"
         m.starts += 1
         log.info("started %s as pid %d (log %s)", m.agent_id, m.child.pid, log_path)
         self._write_pidfile(m)
+
+    def child_env(self, role: str) -> dict[str, str]:
+        """The environment an agent of `role` starts with: no secret but its own role's (``processes.agent_env``)."""
+        return agent_env(self._env, role, self.settings.secrets_path)
 
     def _terminate(self, m: Managed, graceful: bool) -> None:
         if m.child is not None and m.child.popen is not None:

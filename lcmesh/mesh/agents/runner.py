@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import logging
 import sys
+import threading
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.registry import load_agent_class
@@ -17,6 +18,9 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_NO_ROUTER = 0, 1, 2, 3
 # a stop that has not ended the agent by then ends it anyway: above the orchestrator's stop of its agents (asked
 # at once, each given `stop_timeout_s`, default 5 s), below the 60 s a test or `lcmesh stop` waits
 AGENT_STOP_GRACE_S = 30.0
+# told to stop while it still starts (a model loading, a GGUF merging, the twin spinning up): nothing to hand over
+# yet, so the forced exit comes sooner, within compose's 15 s stop_grace_period and a test's 15 s wait
+STARTING_STOP_GRACE_S = 5.0
 GIL_SWITCH_INTERVAL_S = 0.0005  # a bus callback waits at most this for a busy thread to yield (default 5 ms)
 
 
@@ -27,18 +31,34 @@ def setup_logging(settings: MeshSettings, name: str) -> None:
     )
 
 
+def stop_signals(agent_id: str, stop_event: threading.Event) -> tuple[threading.Event, threading.Event]:
+    """(`stop_event`, set by SIGTERM/SIGINT; `started`, to set once the agent runs): a signal before `started`
+    forces the exit after ``STARTING_STOP_GRACE_S`` if the start does not end by itself, after it
+    ``AGENT_STOP_GRACE_S``."""
+    started = threading.Event()
+
+    def grace_s() -> float:
+        return AGENT_STOP_GRACE_S if started.is_set() else STARTING_STOP_GRACE_S
+
+    return stop_on_signals(grace_s, agent_id, EXIT_FAILED, event=stop_event), started
+
+
 def run_agent(role: str, settings: MeshSettings | None = None, agent_id: str | None = None) -> int:
     """Run `role` until SIGTERM/SIGINT (exit 0) or a fatal error (non-zero)."""
     settings = settings or MeshSettings()
     agent = load_agent_class(role)(settings, agent_id)
     setup_logging(settings, agent.agent_id)
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    stop = stop_on_signals(AGENT_STOP_GRACE_S, agent.agent_id, EXIT_FAILED)
+    # the agent's own stop event: a SIGTERM during its start-up (the Sensor's spin-up) is seen there too
+    stop, started = stop_signals(agent.agent_id, agent.stop_event)
     try:
         bus = Bus.connect(settings, agent.agent_id, role=agent.role)
     except BusError as exc:
         log.error("%s", exc)
         return EXIT_NO_ROUTER
+    if stop.is_set():  # told to stop while it connected
+        bus.close()
+        return EXIT_OK
     try:
         try:
             agent.start(bus)
@@ -46,6 +66,7 @@ def run_agent(role: str, settings: MeshSettings | None = None, agent_id: str | N
             log.exception("%s %s could not start", role, agent.agent_id)
             agent.stop()
             return EXIT_BAD_INPUT
+        started.set()
         gc.collect()
         gc.freeze()  # what start-up built stays out of later collections: shorter GC pauses in the loop
         while not stop.wait(0.2):

@@ -8,12 +8,15 @@ falls back to G36, which it runs in shadow every step so it is warm. With ``valv
 in the config, the applied action also carries the scheduled primary-valve strokes (recorded as
 clamps with their reason; the last safe action stays the unstroked one). The step's applied action,
 the next plant state and an FMU checkpoint go to history in one transaction before the applied
-action is published. A proposal counts only if it names the step and the id of the state this
+action is published; the rows the other agents publish it records too (``recorder.py``: the Sensor is
+the only writer of history). A proposal counts only if it names the step and the id of the state this
 Sensor published for it; only the control role can publish proposals at all (the router's access
 control, docs/mesh.md, Security).
 
-It also hosts the toolbox queryables (``tools/{name}``, serialized with stepping by the twin's
-lock, each limited to ``tools_rate_per_s`` queries a second after a burst of ``tools_burst``) and the
+It also hosts the toolbox queryables (``tools/{name}/{role}``, serialized with stepping by the twin's
+lock, each limited to ``tools_rate_per_s`` queries a second per asking role after a burst of
+``tools_burst``; the what-ifs together to ``whatif_max_running`` at once and
+``whatif_plant_minutes_per_min`` plant minutes a wall minute) and the
 commands ``cmd/{agent_id}/inject_fault`` and ``cmd/{agent_id}/status``.
 """
 
@@ -26,13 +29,14 @@ from dataclasses import dataclass, field
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent
+from lcmesh.mesh.agents.recorder import HistoryRecorder
 from lcmesh.mesh.agents.twin_host import TwinHost
 from lcmesh.mesh.bus import QueryError
 from lcmesh.mesh.history import HistoryWriter
 from lcmesh.mesh.messages import (
     ActionModel, AppliedAction, CommandReply, FaultRequest, MeshConfig, PlantState, Proposal, utc_now,
 )  # fmt: skip
-from lcmesh.mesh.ratelimit import TokenBuckets
+from lcmesh.mesh.ratelimit import TokenBuckets, WorkBudget
 from lcmesh.mesh.tools import registry
 from lcmesh.mesh.tools.guardrails import Clamp, apply_guardrails
 from lcmesh.mesh.tools.maintenance import ValveExercise
@@ -62,14 +66,20 @@ class SensorAgent(Agent):
                       "valve_strokes": 0}  # fmt: skip
         self._exercise: ValveExercise | None = None
         self._exercise_period = 0.0
+        self.whatif_budget: WorkBudget | None = None  # the what-ifs' runs and plant minutes, for every asker
+        self.recorder: HistoryRecorder | None = None
 
     # --- lifecycle ------------------------------------------------------------------------------
     def on_start(self) -> None:
         s = self.settings
-        self.history = HistoryWriter(s.history_file, retention=s.history)
+        self.history = HistoryWriter(s.history_file, retention=s.history)  # the mesh's only writer of it
+        self.recorder = HistoryRecorder(self.history)
+        self.recorder.start(self)  # first: its own events of the start are recorded too
         self.twin = TwinHost(s.system, s.trace, s.scenario, s.wet_bulb_offset_k, instance_name=self.agent_id)
         self.fallback = G36Controller(self.twin.system)
         self._begin_or_resume()
+        if self.stopping:  # told to stop during the spin-up: nothing to serve
+            return
         self.watch_config(self._on_config)
         self.subscribe(keys.proposal(self.site, self.cfg.loop), Proposal, self._on_proposal)
         self.serve(keys.cmd(self.site, self.agent_id, "inject_fault"), self._inject_fault)
@@ -98,7 +108,9 @@ class SensorAgent(Agent):
                 self.emit_event("started", f"resumed run {twin.run_id} at step {twin.step}")
                 return
         first = self.fallback.act(twin.observation()).copy()
-        twin.begin(first, self.cfg.spinup_hours)
+        if not twin.begin(first, self.cfg.spinup_hours, stop=self.stop_event):
+            log.info("stopped during the twin's spin-up; no run begun")
+            return
         self.fallback.reset()
         self.last_safe = first
         self.history.start_run(twin.run_id, twin.system.name, twin.system_hash, twin.trace.name)
@@ -114,7 +126,7 @@ class SensorAgent(Agent):
         twin = self.twin
         return {"step": twin.step if twin else None, "run_id": twin.run_id if twin else None,
                 "speed_factor": self.config.speed_factor, "period_s": self.period_s if twin else None,
-                **self.tally}  # fmt: skip
+                "history_rows_recorded": self.recorder.tally if self.recorder else None, **self.tally}  # fmt: skip
 
     # --- bus callbacks ----------------------------------------------------------------------------
     def _on_config(self, old: MeshConfig, new: MeshConfig) -> None:
@@ -158,20 +170,25 @@ class SensorAgent(Agent):
 
     # --- toolbox queryables --------------------------------------------------------------------------
     def _declare_tools(self) -> None:
-        """Serve the twin's toolbox tools (physics and what-ifs), each queryable with its own token bucket."""
+        """Serve the twin's toolbox tools (physics and what-ifs) on ``tools/{name}/{role}``: a token bucket per tool
+        and asking role, and one what-if budget for all (checked before a what-if waits for the twin's lock)."""
+        cfg = self.cfg
+        budget = WorkBudget(cfg.whatif_max_running, cfg.whatif_plant_minutes_per_min, clock=self.clock,
+                            setting="LCMESH_SENSOR__WHATIF_PLANT_MINUTES_PER_MIN")  # fmt: skip
+        self.whatif_budget = budget
+        # invoke holds the twin's lock around each call: a step does not rewrite the outputs a tool reads meanwhile
         context = registry.ToolContext(system=self.twin.system, plant=self.twin.plant, lock=self.twin.lock,
-                                       latest_out=self.twin.plant.out)  # fmt: skip
-        limit = TokenBuckets(self.cfg.tools_rate_per_s, self.cfg.tools_burst, clock=self.clock)
+                                       latest_out=self.twin.plant.out, budget=budget)  # fmt: skip
+        limit = TokenBuckets(cfg.tools_rate_per_s, cfg.tools_burst, clock=self.clock)
         for name in registry.served_tools(data=False):
 
             def answer(payload: bytes | None, name=name):
-                with self.twin.lock:  # the outputs a tool reads are not rewritten by a step meanwhile
-                    result = registry.invoke(name, payload or b"{}", context)
+                result = registry.invoke(name, payload or b"{}", context)
                 if not result.ok:
                     raise QueryError(result.error)
                 return result
 
-            self.serve(keys.tool(self.site, name), answer, limit=limit)
+            self.serve(keys.tool_served(self.site, name), answer, limit=limit)
 
     # --- the control loop -------------------------------------------------------------------------------
     def _loop(self) -> None:

@@ -52,14 +52,16 @@ class TwinHost:
         wet_bulb_k, power = self.inputs(self.step)
         return Observation(self.plant.out, wet_bulb_k, power, self.step * self.system.step_s)
 
-    def begin(self, action: PlantAction, spinup_hours: float) -> None:
-        """A new run: spin up at the trace's first row with `action`, then step 0."""
+    def begin(self, action: PlantAction, spinup_hours: float, stop: threading.Event | None = None) -> bool:
+        """A new run: spin up at the trace's first row with `action`, then step 0. False, and no run begun, if `stop`
+        is set during the spin-up (it is checked between steps: a stop does not wait for the warm-up)."""
         wet_bulb_k, power = self.inputs(0)
         with self.lock:
-            if spinup_hours > 0:
-                self.plant.spin_up(power, wet_bulb_k, action, hours=spinup_hours)
+            if spinup_hours > 0 and not self.plant.spin_up(power, wet_bulb_k, action, hours=spinup_hours, stop=stop):
+                return False
             self.plant.reset()
         self.run_id, self.step = new_id(), 0
+        return True
 
     def resume(self, checkpoint: Checkpoint) -> PlantAction:
         """Continue `checkpoint`'s run at its step; returns the last safe action it held."""

@@ -2,7 +2,10 @@
 
 ``invoke(name, payload, context)`` validates the payload, calls the tool and returns a `ToolResult`: either
 ``ok`` with the response as JSON-ready data, or an error that names the field and what would be valid. It
-never raises for bad input, so a bus callback can answer every query. Equations: docs/toolbox.md.
+never raises for bad input, so a bus callback can answer every query. Non-finite numbers (NaN, Infinity)
+are refused wherever they sit in a request. A what-if (a tool with `plant_minutes`) runs only within the
+context's `budget` (``ratelimit.WorkBudget``), checked before it waits for the twin's lock; over it, the
+result carries `retry_after_s`. Equations: docs/toolbox.md.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from lcmesh.mesh.messages import check_finite
+from lcmesh.mesh.ratelimit import RateLimited, WorkBudget
 from lcmesh.mesh.tools import operations, plant_data, stats, thermo
 from lcmesh.twin.system import SystemDescription
 
@@ -30,9 +35,10 @@ class ToolContext:
 
     system: SystemDescription
     plant: Plant | None = None
-    lock: Any = None  # a threading.Lock (or any context manager) held while a tool uses `plant`
+    lock: Any = None  # a threading.RLock held around every call (the twin's, on the Sensor); tools take it again
     latest_out: Mapping[str, np.ndarray] | None = None
     data: Any = None  # a plant_data.PlantData (state, history, config): the operator's tools read it
+    budget: WorkBudget | None = None  # what-ifs at once and plant minutes per wall minute, for every asker together
 
 
 
@@ -46,13 +52,15 @@ class _Model(BaseModel):
 
 @dataclass(frozen=True)
 class ToolSpec:
-    """A named tool: its request and response models and the function that answers."""
+    """A named tool: its request and response models, the function that answers, and for a what-if the plant
+    minutes a request costs on the twin (`plant_minutes`, spent from ``ToolContext.budget``)."""
 
     name: str
     description: str
     request_model: type[BaseModel]
     response_model: type[BaseModel]
     call: Callable[[Any, ToolContext], BaseModel] = field(repr=False)
+    plant_minutes: Callable[[Any, SystemDescription], float] | None = field(default=None, repr=False)
 
 
 class ToolResult(BaseModel):
@@ -63,6 +71,7 @@ class ToolResult(BaseModel):
     result: dict[str, Any] | None = None
     error: str | None = None
     not_ready: bool = False  # the data the tool needs has not arrived yet (retry later), not a bad request
+    retry_after_s: float | None = None  # over the what-if budget: nothing ran; ask again after this long
 
 
 # --- heat_balance -----------------------------------------------------------------------------------
@@ -323,6 +332,21 @@ def _whatif(req: WhatIfRequest, ctx: ToolContext) -> WhatIfResponse:
 
 
 # --- registry and invocation -----------------------------------------------------------------------------
+def _horizon_min(minutes: float, system: SystemDescription) -> float:
+    """The plant minutes a look-ahead of `minutes` runs: whole steps, as the what-if tools round them."""
+    from lcmesh.mesh.tools.whatif import MAX_WHATIF_STEPS
+
+    steps = min(MAX_WHATIF_STEPS, max(1, round(minutes * 60.0 / system.step_s)))
+    return steps * system.step_s / 60.0
+
+
+# what a what-if request costs on the twin, spent from ToolContext.budget
+PLANT_MINUTES: dict[str, Callable[[Any, SystemDescription], float]] = {
+    "whatif": lambda req, system: req.steps * system.step_s / 60.0,
+    "whatif_setpoint": lambda req, system: _horizon_min(req.minutes, system),
+    "whatif_controller": lambda req, system: 2 * _horizon_min(req.minutes, system),  # two courses
+}
+
 TOOLS: dict[str, ToolSpec] = {
     spec.name: spec
     for spec in (
@@ -338,11 +362,13 @@ TOOLS: dict[str, ToolSpec] = {
         ToolSpec("confidence_interval", "Confidence interval (t, bootstrap) or central range of samples",
                  ConfidenceIntervalRequest, ConfidenceIntervalResponse, _confidence_interval),
         ToolSpec("whatif", "Predicted plant outputs after a setpoint change vs holding the current setpoints, on "
-                 "the live twin (restored afterwards)", WhatIfRequest, WhatIfResponse, _whatif),
+                 "the live twin (restored afterwards)", WhatIfRequest, WhatIfResponse, _whatif,
+                 PLANT_MINUTES["whatif"]),
     )
 }  # fmt: skip
-TOOLS.update({name: ToolSpec(name, description, request, response, call) for name, description, request, response, call
-              in (*plant_data.DATA_TOOLS, *operations.OPERATION_TOOLS)})  # fmt: skip
+TOOLS.update({name: ToolSpec(name, description, request, response, call, PLANT_MINUTES.get(name))
+              for name, description, request, response, call in (*plant_data.DATA_TOOLS, *operations.OPERATION_TOOLS)
+              })  # fmt: skip
 
 
 DATA_TOOLS = tuple(name for name, *_ in (*plant_data.DATA_TOOLS, *operations.OPERATION_TOOLS)
@@ -364,13 +390,21 @@ def invoke(name: str, payload: Mapping[str, Any] | str | bytes | None, context: 
     try:
         if isinstance(payload, (str, bytes)):
             payload = json.loads(payload or "{}")
+        check_finite(payload)
         request = spec.request_model.model_validate(payload or {})
     except json.JSONDecodeError as exc:
         return ToolResult(ok=False, tool=name, error=f"the request is not valid JSON: {exc}")
     except ValidationError as exc:
         return ToolResult(ok=False, tool=name, error=format_validation_error(exc, spec.request_model))
+    except ValueError as exc:
+        return ToolResult(ok=False, tool=name, error=f"invalid {spec.request_model.__name__}: {exc}")
     try:
-        response = spec.call(request, context)
+        budget = context.budget if spec.plant_minutes is not None else None
+        with (budget.run(spec.plant_minutes(request, context.system)) if budget else contextlib.nullcontext(),
+              context.lock if context.lock is not None else contextlib.nullcontext()):  # fmt: skip
+            response = spec.call(request, context)
+    except RateLimited as exc:
+        return ToolResult(ok=False, tool=name, error=str(exc), retry_after_s=exc.retry_after_s)
     except (ToolError, ValueError) as exc:
         return ToolResult(ok=False, tool=name, error=str(exc))
     except (plant_data.NotReady, FileNotFoundError) as exc:

@@ -6,13 +6,13 @@ import json
 
 import pytest
 
-from lcmesh.mesh import keys
-from lcmesh.mesh.agents.configuration import ConfigurationAgent
+from lcmesh.mesh import keys, security
+from lcmesh.mesh.agents.configuration import ConfigStore, ConfigurationAgent
 from lcmesh.mesh.agents.control import ControlAgent
 from lcmesh.mesh.agents.sensor import SensorAgent
 from lcmesh.mesh.bus import BusError
-from lcmesh.mesh.history import HistoryReader
-from lcmesh.mesh.messages import ConfigDoc, ConfigUpdate
+from lcmesh.mesh.history import HistoryReader, HistoryWriter
+from lcmesh.mesh.messages import ConfigDoc, ConfigUpdate, MeshConfig
 from tests.mesh.conftest import wait_until
 
 
@@ -22,6 +22,7 @@ def _update(client, site, section="all", **kw):
 
 def test_changes_are_versioned_persisted_and_audited(start_agent, client, mesh_settings):
     start_agent(ConfigurationAgent)
+    start_agent(SensorAgent)  # history's writer: it audits each version the Configuration agent publishes
     site = mesh_settings.site
     doc = client.request(keys.config(site, "all"), ConfigDoc)
     assert doc.version == 1 and doc.config.controller == "g36" and doc.config.speed_factor == 300.0
@@ -33,8 +34,9 @@ def test_changes_are_versioned_persisted_and_audited(start_agent, client, mesh_s
     assert wait_until(lambda: any(d.version == 2 for d in seen), 5)
     stored = json.loads((mesh_settings.data_dir / "config.json").read_text())
     assert stored["version"] == 2
-    audit = HistoryReader(mesh_settings.history_file).config_changes()
-    assert audit[0]["version"] == 2 and audit[0]["changed_by"] == "operator/alice" and audit[0]["reason"] == "summer"
+    history = HistoryReader(mesh_settings.history_file)
+    audit = wait_until(lambda: [r for r in history.config_changes() if r["version"] == 2], 10)
+    assert audit and audit[0]["changed_by"] == "operator/alice" and audit[0]["reason"] == "summer"
     assert audit[0]["changes"] == {"guardrails.supply_temp_max_k": [313.15, 305.0]}
     assert _update(client, site, changes={"guardrails": {"supply_temp_max_k": 305.0}}).version == 2  # no-op
 
@@ -99,3 +101,40 @@ def test_sensor_and_control_follow_the_configuration(start_agent, client, mesh_s
     row = next(r for r in history.decisions(limit=5) if r["source_controller"] == "manual")
     assert row["source_version"] == f"config-v{doc.version}" and not row["fallback"]
     assert any(r["source_controller"] == "static" for r in history.decisions(limit=200))
+
+
+def _signed_by_the_run(doc: ConfigDoc, settings) -> bool:
+    verifier = security.load_config_verifier(settings.secrets_path)
+    return verifier.valid(doc.version, doc.config.model_dump(mode="json"), doc.signature)
+
+
+def test_every_published_version_is_signed(start_agent, client, mesh_settings):
+    start_agent(ConfigurationAgent)
+    site = mesh_settings.site
+    first = client.request(keys.config(site, "all"), ConfigDoc)
+    assert first.signature and _signed_by_the_run(first, mesh_settings)
+    new = _update(client, site, changes={"speed_factor": 120.0})
+    assert new.version == 2 and _signed_by_the_run(new, mesh_settings)
+    assert not _signed_by_the_run(new.model_copy(update={"version": 3}), mesh_settings)
+
+
+def test_a_history_row_the_store_does_not_hold_is_never_adopted(tmp_path):
+    """A history writer (or anyone who can write the file) adds a newer version with wide guardrails: a restarted
+    store keeps its own content, issues it after that version (versions never go back) and signs it."""
+    security.ensure_secrets(tmp_path / "secrets")
+    signer = security.load_config_signer(tmp_path / "secrets")
+    store_path, history = tmp_path / "config.json", tmp_path / "history.sqlite"
+    store = ConfigStore(store_path, MeshConfig(controller="g36"), None, history, signer=signer)
+    writer = HistoryWriter(history)
+    writer.add_config_change(store.doc, {"*": [None, "initial"]})  # what the Sensor records from config/all
+    wide = MeshConfig(controller="static").model_dump(mode="json")
+    wide["guardrails"].update(supply_temp_max_k=353.15, supply_temp_rate_k=30.0)
+    forged = ConfigDoc(source="configuration", version=2, config=MeshConfig.model_validate(wide), changed_by="ui/x")
+    writer.add_config_change(forged, {"guardrails.supply_temp_rate_k": [2.0, 30.0]})
+    writer.close()
+    again = ConfigStore(store_path, MeshConfig(controller="g36"), None, history, signer=signer)
+    assert again.doc.config == store.doc.config and again.doc.config.guardrails.supply_temp_rate_k == 2.0
+    assert again.doc.version == 3, "after history's version: no agent that saw 2 refuses it as old"
+    verifier = security.load_config_verifier(tmp_path / "secrets")
+    assert verifier.valid(3, again.doc.config.model_dump(mode="json"), again.doc.signature)
+    assert json.loads(store_path.read_text())["version"] == 3

@@ -125,26 +125,29 @@ def test_late_joiners_get_the_latest_state(start_agent, client, mesh_settings):
 
 
 def test_fault_injection_status_and_toolbox_queryables(start_agent, bus_as, mesh_settings):
-    client = bus_as("ui")  # cmd/* is the orchestrator's and the UI's
+    commands, client = bus_as("orchestration"), bus_as("ui")  # cmd/* is the orchestrator's alone, tools/* anyone's
     sensor = start_agent(SensorAgent)
     assert wait_until(lambda: sensor.tally["steps"] >= 1, 20)
     key = keys.cmd(mesh_settings.site, "sensor", "inject_fault")
-    reply = client.request(key, CommandReply, FaultRequest(kind="pump_degradation", cabinet=2, value=0.5))
+    inject = FaultRequest(kind="pump_degradation", cabinet=2, value=0.5)
+    assert client.query(key, inject.model_dump_json(), timeout_s=1.0) == [], "the router keeps the UI role out of cmd/*"
+    assert not sensor.twin.plant.faults.active
+    reply = commands.request(key, CommandReply, inject)
     assert reply.ok and reply.data["pump_degradation"][1] == 0.5 and reply.data["active"]  # cabinet 2: index 1
     assert wait_until(lambda: sensor.twin.plant.faults.active, 5)
     with pytest.raises(BusError, match=r"`cabinet` must be in 1\.\.5 \(numbered from 1\), got 9"):
-        client.request(key, CommandReply, FaultRequest(kind="valve_stuck", cabinet=9))
+        commands.request(key, CommandReply, FaultRequest(kind="valve_stuck", cabinet=9))
     with pytest.raises(BusError, match="kind"):
-        client.request(key, CommandReply, b'{"kind": "meltdown"}')
-    status = client.request(keys.cmd(mesh_settings.site, "sensor", "status"), CommandReply)
+        commands.request(key, CommandReply, b'{"kind": "meltdown"}')
+    status = commands.request(keys.cmd(mesh_settings.site, "sensor", "status"), CommandReply)
     assert status.data["step"] >= 1 and status.data["run_id"] == sensor.twin.run_id
     registry = pytest.importorskip("lcmesh.mesh.tools.registry")
     for name in registry.served_tools(data=False):  # the data tools are the UI agent's (tests/mesh/ui)
-        assert client.query(keys.tool(mesh_settings.site, name), b"{}", timeout_s=5.0), name
+        assert client.query(keys.tool(mesh_settings.site, name, "ui"), b"{}", timeout_s=5.0), name
     assert "whatif_setpoint" in registry.served_tools(data=False) and "plant_state" not in registry.served_tools(
         data=False)
-    replies = client.query(keys.tool(mesh_settings.site, "whatif"), b'{"supply_temp_setpoint_delta_k": -2, "steps": 4}',
-                           timeout_s=10.0)  # fmt: skip
+    replies = client.query(keys.tool(mesh_settings.site, "whatif", "ui"),
+                           b'{"supply_temp_setpoint_delta_k": -2, "steps": 4}', timeout_s=10.0)  # fmt: skip
     assert replies and replies[0].ok, replies
     assert b"predicted" in replies[0].payload
 
@@ -169,18 +172,18 @@ def test_a_flood_of_what_ifs_is_answered_rate_limited_and_counted(start_agent, b
     client = bus_as("ui")
     stats: list[AgentStats] = []
     client.subscribe(keys.agent_stats(mesh_settings.site, sensor.agent_id), AgentStats, stats.append)
-    whatif, body = keys.tool(mesh_settings.site, "whatif"), b'{"supply_temp_setpoint_delta_k": 1, "steps": 2}'
+    whatif, body = keys.tool(mesh_settings.site, "whatif", "ui"), b'{"supply_temp_setpoint_delta_k": 1, "steps": 2}'
     answers = [client.query(whatif, body, timeout_s=10.0) for _ in range(3)]
     assert all(len(replies) == 1 for replies in answers), answers
     assert [replies[0].ok for replies in answers] == [True, True, False]  # the burst of 2, then the limit
-    assert answers[2][0].payload.decode() == "rate limited: 0.5 queries/s for tools/whatif; retry in 2.0 s"
-    other = client.query(keys.tool(mesh_settings.site, "approach"), b'{"leaving_water_k": 300, "wet_bulb_k": 295}',
-                         timeout_s=5.0)  # fmt: skip
+    assert answers[2][0].payload.decode() == "rate limited: 0.5 queries/s for tools/whatif/ui; retry in 2.0 s"
+    other = client.query(keys.tool(mesh_settings.site, "approach", "ui"),
+                         b'{"leaving_water_k": 300, "wet_bulb_k": 295}', timeout_s=5.0)  # fmt: skip
     assert other[0].ok, other  # each queryable has a bucket of its own
     clock.now_s += 2.0  # one token back
     assert client.query(whatif, body, timeout_s=10.0)[0].ok
-    assert sensor.bus.counters.snapshot()["rate_limited"] == {"tools/whatif": 1}
-    assert wait_until(lambda: stats and stats[-1].rate_limited == {"tools/whatif": 1}, 10), stats[-1:]
+    assert sensor.bus.counters.snapshot()["rate_limited"] == {"tools/whatif/ui": 1}
+    assert wait_until(lambda: stats and stats[-1].rate_limited == {"tools/whatif/ui": 1}, 10), stats[-1:]
 
 
 def test_a_restarted_sensor_resumes_its_run_without_a_gap(start_agent, mesh_settings):
@@ -192,7 +195,8 @@ def test_a_restarted_sensor_resumes_its_run_without_a_gap(start_agent, mesh_sett
     step = max(r["step"] for r in history.states(fields=()))
     again = start_agent(SensorAgent, agent_id="sensor")
     assert again.twin.run_id == run_id  # its loop may already have stepped on: where it resumed is in its event
-    resumed = [e for e in history.agent_events(limit=20) if e["detail"].startswith("resumed run")]
+    # its event reaches history over the bus (the Sensor records what is published, its own events too)
+    resumed = wait_until(lambda: [e for e in history.agent_events(limit=20) if e["detail"].startswith("resumed run")])
     assert resumed and resumed[0]["detail"] == f"resumed run {run_id} at step {step}"
     assert wait_until(lambda: again.tally["steps"] >= 3, 60)
     assert history.step_gaps("plant_states") == [] and history.step_gaps("actions") == []
@@ -256,7 +260,12 @@ def test_the_llm_explainer_publishes_a_judged_text_over_the_rendering(start_agen
     assert wait_until(lambda: control.tally["llm_texts"] + control.tally["llm_fallbacks"] >= 2, 120)
     published = control.tally["llm_texts"]  # read before the history and the stats: one may finish in between
     history = HistoryReader(mesh_settings.history_file)
-    rows = history.explanations(limit=1000)  # a text is in history before it is counted
+
+    def caught_up():  # the Sensor records what Control published: history catches up with the count
+        rows = history.explanations(limit=1000)
+        return rows if sum(e["written_by"] == "llm" for e in rows) >= published else None
+
+    rows = wait_until(caught_up, 30) or history.explanations(limit=1000)
     renderings = [e for e in rows if e["written_by"] == "renderer"]
     by_llm = [e for e in rows if e["written_by"] == "llm"]
     assert len(renderings) >= 2 and all("## WHAT IF" not in e["text"] for e in renderings)
@@ -292,3 +301,28 @@ def test_the_llm_controller_runs_paced_in_the_mesh_and_says_who_decided(start_ag
     history = HistoryReader(settings.history_file)
     rows = wait_until(lambda: [d for d in history.decisions(limit=200) if d["source_controller"] == "llm"], 30)
     assert rows, "no decision of the LLM controller was applied"
+
+
+def test_a_sensor_told_to_stop_during_its_spin_up_stops_there(mesh_settings, router, client):
+    """A SIGTERM while the twin warms up (the runner sets the agent's stop event) ends the spin-up between two steps:
+    `start` returns with no run begun, no liveliness token and no loop, and `stop` undoes the rest."""
+    from lcmesh.mesh.bus import Bus
+    from tests.mesh.agents.test_twin_host import SetOnCheck
+
+    class StoppedWhileWarming(SensorAgent):
+        def __init__(self, settings, agent_id=None):
+            super().__init__(settings, agent_id)
+            self._stop = SetOnCheck(30)  # of the spin-up's 240 steps, a few in
+
+    sensor = StoppedWhileWarming(mesh_settings)
+    bus = Bus.connect(mesh_settings, sensor.agent_id)
+    try:
+        sensor.start(bus)
+        assert sensor.stopping and sensor.twin.run_id == "" and sensor.tally["steps"] == 0
+        assert 0 < sensor.twin.plant.n_steps_done < 30, "stopped within the spin-up, between steps"
+        assert client.alive(keys.alive(mesh_settings.site, "sensor", "sensor"), timeout_s=1.0) == []
+        assert not [t for t in sensor._threads if t.name.endswith("-loop")]
+    finally:
+        sensor.stop()
+        bus.close()
+    assert sensor.twin is None

@@ -3,6 +3,8 @@ what a resumed host holds."""
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -61,3 +63,30 @@ def test_a_resumed_host_holds_the_inputs_of_the_checkpointed_step(lcopt_host):
                 np.testing.assert_array_equal(again[name][output], values, err_msg=f"{name} {output}")
     finally:
         resumed.close()
+
+
+class SetOnCheck(threading.Event):
+    """An event that sets itself on its `n`-th look (a stop that arrives in the middle of the spin-up, at a known step)."""
+
+    def __init__(self, n: int):
+        super().__init__()
+        self.looks, self.n = 0, n
+
+    def is_set(self) -> bool:
+        self.looks += 1
+        if self.looks >= self.n:
+            self.set()
+        return super().is_set()
+
+
+def test_a_stop_during_the_spin_up_ends_it_between_steps(lcopt_host):
+    """The spin-up (240 plant steps for an hour) looks at the stop event before every step: stopped at the 4th look,
+    it has run 3 steps, begins no run and leaves the reset state alone; unstopped, it runs them all."""
+    action = lcopt_host.plant.default_action()
+    stop = SetOnCheck(4)
+    assert lcopt_host.begin(action, spinup_hours=1.0, stop=stop) is False
+    assert stop.looks == 4 and lcopt_host.plant.n_steps_done == 3 and lcopt_host.run_id == ""
+    assert lcopt_host.plant._initial is None, "a cut-short spin-up is not the reset state"
+    go_on = SetOnCheck(10**6)
+    assert lcopt_host.begin(action, spinup_hours=1.0, stop=go_on) is True
+    assert go_on.looks == 240 and lcopt_host.run_id and lcopt_host.step == 0

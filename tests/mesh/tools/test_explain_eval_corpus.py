@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from lcmesh.mesh.tools.explain_eval.bench import (
-    CORPUS, JUDGED_KINDS, corpus_markdown, corpus_record, corpus_verdict, load_corpus,
+    CORPUS, JUDGED_KINDS, corpus_markdown, corpus_record, corpus_verdict, load_corpus, load_fresh,
 )  # fmt: skip
 from lcmesh.mesh.tools.explain_eval import evaluate_record
 
@@ -107,3 +107,16 @@ def test_one_corpus_record_is_a_valid_explain_eval_line():
     item = evaluate_record(json.loads(json.dumps(corpus_record(RECORDS, t))))
     assert item["id"] == t["id"] and "invalid_record" not in {f["kind"] for f in item["flags"]}
     assert CORPUS.is_dir()
+
+
+def test_the_new_test_part_meets_its_brief():
+    """Issue 35's new test part (a third outside author): >= 300 texts on test decisions only, every judged flag
+    kind planted >= 20 times, >= 40 % in es/de/fr, one planted flaw per flawed text."""
+    records, _ = load_corpus()
+    part = load_fresh(name="fresh2.jsonl")
+    assert len(part) >= 300 and len({t["id"] for t in part}) == len(part)
+    assert {records[t["record_key"]]["split"] for t in part} == {"test"}
+    planted = Counter(t["error"] for t in part if not t["correct"])
+    assert all(planted[kind] >= 20 for kind in JUDGED_KINDS), planted
+    assert all(t["expected_flags"] == ([] if t["correct"] else [t["error"]]) for t in part)
+    assert sum(t["lang"] in ("es", "de", "fr") for t in part) >= 0.4 * len(part)

@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from lcmesh.cli import app
 from lcmesh.mesh.tools.registry import TOOLS, ToolContext, catalog, invoke
 from lcmesh.twin.system import load_system
+from tests.mesh.conftest import wait_until
 
 _LCOPT5_CELL_DESIGN_W = load_system("lcopt-5").towers.cell.design_heat_w  # the parameters below need it at import
 
@@ -93,7 +94,7 @@ def test_whatif_and_indexed_tools_on_the_twin(plant):
     for _ in range(300):
         plant.step(power, 290.0, action)
     before = {k: v.copy() for k, v in plant.out.items()}
-    ctx = ToolContext(plant.system, plant=plant, lock=threading.Lock(), latest_out=plant.out)
+    ctx = ToolContext(plant.system, plant=plant, lock=threading.RLock(), latest_out=plant.out)
     r = invoke("whatif", {"supply_temp_setpoint_delta_k": 2.0, "cabinets": [1], "steps": 20}, ctx)
     assert r.ok, r.error
     delta = np.array(r.result["delta"]["supply_temp_k"])
@@ -126,3 +127,69 @@ def test_cli_tools_call_and_list():
     assert bad.exit_code == 1 and "`speed_from`: Field required" in bad.stdout
     listing = runner.invoke(app, ["tools", "list", "--schemas"])
     assert listing.exit_code == 0 and "whatif" in json.loads(listing.stdout)["tools"][-1]["name"]
+
+
+@pytest.mark.parametrize("token,shown", [("NaN", "nan"), ("Infinity", "inf"), ("-Infinity", "-inf"), ("1e999", "inf")])
+def test_non_finite_numbers_are_refused_naming_the_field(ctx, token, shown):
+    # json.loads lets NaN / Infinity through, and a bare float field (no bounds) let them into the tool
+    text = f'{{"samples": [1, 2, {token}], "confidence": 0.9}}'
+    result = invoke("confidence_interval", text, ctx)
+    assert not result.ok and result.error == (f"invalid ConfidenceIntervalRequest: `samples[2]` must be a finite "
+                                              f"number, got {shown}")  # fmt: skip
+    parsed = invoke("confidence_interval", {"samples": [1.0, 2.0], "confidence": float(shown)}, ctx)
+    assert not parsed.ok and f"`confidence` must be a finite number, got {shown}" in parsed.error
+    change = invoke("whatif_setpoint", f'{{"setpoint": "supply", "change": {token}}}', ctx)
+    assert not change.ok and f"`change` must be a finite number, got {shown}" in change.error
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.now_s = 100.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+def test_what_ifs_spend_the_plant_minutes_budget_before_they_wait_for_the_twin(plant):
+    from lcmesh.mesh.ratelimit import WorkBudget
+
+    clock = _Clock()
+    budget = WorkBudget(max_running=1, units_per_min=10.0, clock=clock)
+    lock = threading.RLock()
+    ctx = ToolContext(plant.system, plant=plant, lock=lock, latest_out=plant.out, budget=budget)
+    first = invoke("whatif", {"supply_temp_setpoint_delta_k": 1.0, "steps": 24}, ctx)  # 24 x 15 s = 6 plant minutes
+    assert first.ok, first.error
+    over = invoke("whatif_setpoint", {"setpoint": "supply", "change": 1.0, "minutes": 5}, ctx)
+    assert not over.ok and over.retry_after_s == 6.0, over  # 4 left, 1 more each 6 s
+    assert over.error == ("rate limited: the what-if budget of 10 plant minutes a minute is spent (this one needs 5); "
+                          "retry in 6.0 s")  # fmt: skip
+    assert invoke("heat_balance", {"cabinet": 1}, ctx).ok  # only the what-ifs spend it
+    both = invoke("whatif_controller", {"controller": "g36", "current": "static", "minutes": 6}, ctx)
+    assert not both.ok and "needs 12 plant minutes; the budget is 10" in both.error  # two courses of 6
+    clock.now_s += 6.0
+    assert invoke("whatif_setpoint", {"setpoint": "supply", "change": 1.0, "minutes": 5}, ctx).ok
+    held = threading.Event()
+    release = threading.Event()
+
+    def hold_the_twin():
+        with lock:
+            held.set()
+            release.wait(30)
+
+    holder = threading.Thread(target=hold_the_twin)
+    holder.start()
+    try:
+        assert held.wait(30)
+        clock.now_s += 60.0
+        waiting = []
+        asker = threading.Thread(target=lambda: waiting.append(invoke("whatif", {"steps": 4}, ctx)))
+        asker.start()  # admitted (1 run), then waits for the twin
+        assert wait_until(lambda: budget.running == 1, 30)
+        refused = invoke("whatif", {"steps": 4}, ctx)  # refused at once: it does not queue behind the lock
+        assert not refused.ok and refused.retry_after_s == 1.0 and "at most 1 at once" in refused.error
+    finally:
+        release.set()
+        holder.join()
+    asker.join()
+    assert waiting[0].ok and budget.running == 0
+

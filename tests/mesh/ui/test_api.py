@@ -194,8 +194,10 @@ def test_chat_proposes_commands_and_never_applies_them(api):
     assert body["intent"] == "propose_change" and cmd["path"] == "/api/control/setpoints"
     assert cmd["body"]["supply_temp_setpoint_c"][2] == 29.0
     body = api.post("/api/chat", json={"message": "switch to the static controller; DROP TABLE actions;"}).json()
-    assert body["proposed_command"] == {"method": "POST", "path": "/api/control/mode", "body": {"controller": "static"},
-                                        "summary": body["proposed_command"]["summary"]}  # fmt: skip
+    cmd = body["proposed_command"]
+    assert cmd == {"method": "POST", "path": "/api/control/mode", "summary": cmd["summary"],
+                   "expires_at": cmd["expires_at"],  # a proposal ages (tests/mesh/ui/test_limits_and_proposals.py)
+                   "body": {"controller": "static", "proposal": cmd["body"]["proposal"]}}  # fmt: skip
     assert api.get("/api/config").json()["version"] == before, "chat must not change the configuration"
 
 
@@ -247,8 +249,8 @@ def test_openapi_documents_the_contract(api):
     setpoints = doc["components"]["schemas"]["SetpointsRequest"]["properties"]
     assert {"type": "array", "items": {"type": "number", "minimum": 0.0, "maximum": 80.0}, "minItems": 5,
             "maxItems": 5} in setpoints["supply_temp_setpoint_c"]["anyOf"], "one value per cabinet of this site"
-    assert set(doc["paths"]["/api/control/setpoints"]["post"]["responses"]) == {"200", "400", "401", "404", "413",
-                                                                                 "422", "503"}  # fmt: skip
+    assert set(doc["paths"]["/api/control/setpoints"]["post"]["responses"]) == {
+        "200", "400", "401", "404", "409", "410", "413", "422", "503"}  # 409, 410: a chat proposal aged  # fmt: skip
     assert api.get("/").headers["content-security-policy"].startswith("default-src 'self'")
 
 
@@ -283,7 +285,7 @@ def test_an_injected_fault_shows_as_alert_metric_and_chat_answer(api, ui_mesh):
     from lcmesh.mesh.messages import CommandReply, FaultRequest
 
     site = ui_mesh.settings.site
-    bus = Bus.connect(ui_mesh.settings, "fault-tester", role="ui")  # cmd/* is the orchestrator's and the UI's
+    bus = Bus.connect(ui_mesh.settings, "fault-tester", role="orchestration")  # cmd/* is the orchestrator's alone
     try:
         bus.request(keys.cmd(site, "sensor", "inject_fault"), CommandReply,
                     FaultRequest(kind="pump_degradation", cabinet=1, value=0.6))  # fmt: skip
@@ -305,17 +307,18 @@ def test_an_injected_fault_shows_as_alert_metric_and_chat_answer(api, ui_mesh):
 
 
 def test_the_ui_serves_the_assistants_data_tools_on_the_bus(ui_mesh):
-    """One registry: the tools the chat plans with are the ones any agent can query on tools/{name}."""
+    """One registry: the tools the chat plans with are the ones any agent can query on tools/{name}/{role}."""
     import json
 
     from lcmesh.mesh import keys
 
     other = next(a for a in ui_mesh.agents if a.role == "control")  # a role allowed to query tools
-    replies = other.bus.query(keys.tool(ui_mesh.settings.site, "rank"), b'{"quantity": "blade_temp", "top": 2}',
+    site = ui_mesh.settings.site
+    replies = other.bus.query(keys.tool(site, "rank", "control"), b'{"quantity": "blade_temp", "top": 2}',
                               timeout_s=5.0)  # fmt: skip
     assert replies and replies[0].ok, replies
     result = json.loads(replies[0].payload)["result"]
     assert [v["kind"] for v in result["ranked"]] == ["cabinet", "cabinet"] and result["count"] == 5
-    replies = other.bus.query(keys.tool(ui_mesh.settings.site, "plant_state"), b'{"quantity": "valve", "cabinet": 9}',
+    replies = other.bus.query(keys.tool(site, "plant_state", "control"), b'{"quantity": "valve", "cabinet": 9}',
                               timeout_s=5.0)  # fmt: skip
     assert replies and not replies[0].ok and b"there is no cabinet 9" in replies[0].payload

@@ -3,6 +3,7 @@ chat rate limiter."""
 
 from __future__ import annotations
 
+import re
 import stat
 
 import pytest
@@ -66,6 +67,7 @@ def test_strong_tokens_from_env_or_file(tmp_path):
     assert resolve_token(STRONG, None, "0.0.0.0", tmp_path).origin == "env"
     secret = tmp_path / "token"
     secret.write_text(STRONG + "\n")
+    secret.chmod(0o600)
     token = resolve_token(None, secret, "10.0.0.5", tmp_path)
     assert token.value == STRONG and token.origin == "file"
     with pytest.raises(InsecureBindError, match="can not be read"):
@@ -75,6 +77,22 @@ def test_strong_tokens_from_env_or_file(tmp_path):
     assert created.origin == "generated" and len(created.value) >= 32
     again = resolve_token(None, tmp_path / "made" / "token", "0.0.0.0", tmp_path, create_file=True)
     assert again.value == created.value and again.origin == "file"  # a restart keeps the token
+
+
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o620, 0o604, 0o602, 0o666, 0o660])
+def test_a_token_file_others_may_read_or_write_is_refused(tmp_path, mode):
+    """Like ssh with a key: the operator's token file must be the owner's alone (it was read whatever its mode)."""
+    secret = tmp_path / "token"
+    secret.write_text(STRONG + "\n")
+    secret.chmod(mode)
+    for host in ("10.0.0.5", "127.0.0.1"):
+        expected = rf"LCMESH_API_TOKEN_FILE.*{re.escape(str(secret))}.*mode {mode:04o}.*chmod 600"
+        with pytest.raises(InsecureBindError, match=expected):
+            resolve_token(None, secret, host, tmp_path)
+    assert stat.S_IMODE(secret.stat().st_mode) == mode, "the operator's file is left as it is"
+    for private in (0o600, 0o400):
+        secret.chmod(private)
+        assert resolve_token(None, secret, "10.0.0.5", tmp_path).value == STRONG
 
 
 def test_bearer_matching_and_loopback_detection():

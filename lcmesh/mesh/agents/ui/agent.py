@@ -29,7 +29,7 @@ from lcmesh.mesh.agents.ui.security import is_loopback, resolve_token, weak_toke
 from lcmesh.mesh.bus import QueryError
 from lcmesh.mesh.history import HistoryReader
 from lcmesh.mesh.messages import (
-    AgentEvent, AgentStats, Alert, AppliedAction, ConfigDoc, Explanation, MeshConfig, MonitorReport, PlantState,
+    AgentEvent, Alert, AppliedAction, ConfigDoc, Explanation, MeshConfig, MonitorReport, PlantState,
     utc_now,
 )  # fmt: skip
 from lcmesh.mesh.ratelimit import TokenBuckets
@@ -71,7 +71,7 @@ class UiAgent(Agent):
             log.warning("the API token is weak (%s); acceptable on loopback only", weak_token_reason(token.value))
         sock = _bind(s.ui_host, s.ui_port)
         system = load_system(s.system)
-        hub = EventHub(ui.sse_queue)
+        hub = EventHub(ui.sse_queue, ui.sse_max_clients)
         store = LiveStore(system, hub, keep=ui.decisions_kept, state_hz=ui.sse_state_hz)
         gateway = MeshGateway(self.bus, self.site, ui.bus_timeout_s)
         phraser, note = make_phraser(ui.phraser, adapter=ui.phraser_adapter)
@@ -94,10 +94,13 @@ class UiAgent(Agent):
         self.subscribe(keys.alerts(self.site), Alert, store.on_alert)
         self.subscribe(keys.monitor_report(self.site), MonitorReport, store.on_monitor, latest=True)
         self.subscribe(keys.events(self.site), AgentEvent, store.on_event)
-        self.subscribe(keys.agent_stats_all(self.site), AgentStats, store.on_stats)
-        self._declared.append(self.bus.watch_liveliness(keys.alive_all(self.site), self._on_liveliness))
+        self.subscribe_stats(store.on_stats)  # attributed by key: a forged `decided_by` never reaches the page
+        self.watch_agents(lambda role, agent_id, alive: store.on_liveliness(role, agent_id, alive, utc_now()))
+        # uvicorn trusts X-Forwarded-For from 127.0.0.1 by default: any local client could name its own address (a
+        # fresh chat bucket per request, the `changed_by` it likes); only a configured proxy's headers count
         config = uvicorn.Config(create_app(self.ctx), log_level="warning", access_log=False, lifespan="on",
-                                timeout_graceful_shutdown=2, ws="none")  # fmt: skip
+                                timeout_graceful_shutdown=2, ws="none", proxy_headers=bool(ui.trusted_proxies),
+                                forwarded_allow_ips=ui.trusted_proxies or None)  # fmt: skip
         self.server = uvicorn.Server(config)
         self.spawn("http", lambda: self.server.run(sockets=[sock]))
         deadline = time.monotonic() + START_TIMEOUT_S
@@ -130,8 +133,8 @@ class UiAgent(Agent):
                 "phraser_note": ctx.phraser_note}  # fmt: skip
 
     def _serve_data_tools(self, sources: ChatSources) -> None:
-        """The operator's data tools on ``tools/{name}``: the registry the chat plans with, for anyone on the bus,
-        each queryable with its own token bucket (history reads are cheap, but not free)."""
+        """The operator's data tools on ``tools/{name}/{role}``: the registry the chat plans with, for anyone on the
+        bus, each with a token bucket per tool and asking role (history reads are cheap, but not free)."""
         context = registry.ToolContext(system=sources.system, data=sources)
         limit = TokenBuckets(self.ui.tools_rate_per_s, self.ui.tools_burst)
         for name in registry.served_tools(data=True):
@@ -142,7 +145,7 @@ class UiAgent(Agent):
                     raise QueryError(result.error)
                 return result
 
-            self.serve(keys.tool(self.site, name), answer, limit=limit)
+            self.serve(keys.tool_served(self.site, name), answer, limit=limit)
 
     # --- data sources --------------------------------------------------------------------------------
     def history_reader(self) -> HistoryReader:
@@ -174,11 +177,6 @@ class UiAgent(Agent):
         doc: ConfigDoc | None = self.config_doc
         if doc is not None and self.ctx is not None:
             self.ctx.hub.publish("config", dumps(doc.model_dump(mode="json")))
-
-    def _on_liveliness(self, key: str, alive: bool) -> None:
-        parsed = keys.parse_alive(key)
-        if parsed is not None and self.ctx is not None:
-            self.ctx.store.on_liveliness(parsed[0], parsed[1], alive, utc_now())
 
 
 def _bind(host: str, port: int) -> socket.socket:

@@ -5,9 +5,10 @@ history reader, the bus gateway, the chat engine, the token), behind the guards 
 (Host allow-list, body limit, token before the body). Errors are uniform JSON ``{"detail": "..."}``
 naming the field: 422 for bad input, 400 for a body that is not JSON or a Host not allowed, 401
 without the token, 404 for an unknown cabinet, tower or run, 405 with every method of the path in
-``Allow``, 409 for a configuration version conflict, 413 for a body over 256 KiB, 429 when
-chatting too fast, 503 with the reason when the mesh is not ready. ``/openapi.json`` documents each
-(``openapi.py`` adds what only this site knows).
+``Allow``, 409 for a configuration version conflict, 410 for a chat proposal that aged, 413 for a
+body over 256 KiB, 429 with ``Retry-After`` when chatting too fast or when a tool is over its rate
+limit or the what-if budget, 503 with the reason when the mesh is not ready. ``/openapi.json``
+documents each (``openapi.py`` adds what only this site knows).
 """
 
 from __future__ import annotations
@@ -15,11 +16,13 @@ from __future__ import annotations
 import asyncio
 import difflib
 import functools
+import math
 import time
 import typing
 from collections.abc import Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
+from datetime import datetime
 from importlib import resources
 from pathlib import Path
 
@@ -43,7 +46,8 @@ from lcmesh.mesh.agents.ui.metrics import LatencyMiddleware, UiCollector, make_r
 from lcmesh.mesh.agents.ui.openapi import site_openapi
 from lcmesh.mesh.agents.ui.security import ApiToken, RateLimiter, allowed_hosts, allowed_origins
 from lcmesh.mesh.history import HistoryReader
-from lcmesh.mesh.messages import ConfigDoc
+from lcmesh.mesh.messages import ConfigDoc, utc_now
+from lcmesh.mesh.ratelimit import RateLimited
 from lcmesh.mesh.settings import MeshSettings
 from lcmesh.twin.system import SystemDescription
 
@@ -51,6 +55,31 @@ STATIC_DIR = Path(str(resources.files("lcmesh.mesh.agents.ui").joinpath("static"
 MAX_BODY_BYTES = 256 * 1024  # the largest body a write needs is a manual action: a few KiB
 PAGE_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
             "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")  # fmt: skip
+# on every answer, not only on `/`: the page is also a file under /static, and an error page is a page too
+SECURITY_HEADERS = {"content-security-policy": PAGE_CSP, "x-frame-options": "DENY",
+                    "x-content-type-options": "nosniff", "referrer-policy": "no-referrer"}  # fmt: skip
+
+
+class SecurityHeaders:
+    """Pure ASGI middleware adding `SECURITY_HEADERS` to every HTTP answer that does not set its own."""
+
+    def __init__(self, app):
+        self.app = app
+        self.extra = [(k.encode(), v.encode()) for k, v in SECURITY_HEADERS.items()]
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_with_headers(message):
+            if message["type"] == "http.response.start":
+                present = {k.lower() for k, _ in message.get("headers", [])}
+                message = {**message, "headers": [*message.get("headers", []),
+                                                  *(h for h in self.extra if h[0] not in present)]}  # fmt: skip
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
 
 
 @dataclass
@@ -71,6 +100,7 @@ class UiContext:
     started_at: float = field(default_factory=time.monotonic)
     limiter: RateLimiter | None = None
     phraser_note: str | None = None
+    clock: Callable[[], datetime] = utc_now  # wall time (UTC) of chat proposals and their confirmation
 
     def __post_init__(self):
         if self.limiter is None:
@@ -163,6 +193,11 @@ def create_app(ctx: UiContext) -> FastAPI:
     async def _unavailable(_request: Request, exc: MeshUnavailable):
         return JSONResponse({"detail": f"mesh unavailable: {exc}"}, status_code=503, headers={"Retry-After": "2"})
 
+    @app.exception_handler(RateLimited)
+    async def _busy(_request: Request, exc: RateLimited):  # a tool over its rate limit or the what-if budget
+        return JSONResponse({"detail": str(exc)}, status_code=429,
+                            headers={"Retry-After": str(max(1, math.ceil(exc.retry_after_s)))})  # fmt: skip
+
     @app.exception_handler(MeshRefused)
     async def _refused(_request: Request, exc: MeshRefused):
         return JSONResponse({"detail": str(exc)}, status_code=409 if exc.conflict else 422)
@@ -175,7 +210,7 @@ def create_app(ctx: UiContext) -> FastAPI:
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     plugins = ctx.settings.allowed_controller_plugins  # FastAPI's documented override of the document:
     app.openapi = functools.cache(lambda: site_openapi(app, ctx.system, ctx.ui, plugins))
-    # the last added runs first: Host allow-list, CORS, latency, body limit, token, then the routes
+    # the last added runs first: security headers, Host allow-list, CORS, latency, body limit, token, then the routes
     app.add_middleware(WriteAuth, routes=routes_needing(api_routes, control.require_token),
                        token=lambda: ctx.token.value)  # fmt: skip
     app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)
@@ -185,6 +220,7 @@ def create_app(ctx: UiContext) -> FastAPI:
                        allow_headers=["Authorization", "Content-Type"], max_age=600)  # fmt: skip
     app.add_middleware(HostCheck, allowed=allowed_hosts(ctx.settings.ui_host, ctx.settings.ui_port,
                                                         ctx.ui.allowed_hosts))  # fmt: skip
+    app.add_middleware(SecurityHeaders)  # outermost: a refusal by a guard carries the headers too
     return app
 
 

@@ -34,6 +34,7 @@ from lcmesh.mesh.agents.ui.gateway import MeshRefused, MeshUnavailable
 from lcmesh.mesh.agents.ui.language import detect_language, phrase
 from lcmesh.mesh.agents.ui.phrasing import Phraser, TemplatePhraser
 from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall
+from lcmesh.mesh.ratelimit import RateLimited
 from lcmesh.mesh.tools import registry, semantic
 from lcmesh.mesh.tools.vocab import (
     ASKED_STATS, DOWN_ASKED, HIGH_WORD, LOW_WORD, MEASURED_WORD, MISSING_WORDS, PAIRED_CONCEPTS, QUESTION_CONCEPTS,
@@ -60,8 +61,11 @@ class ToolRunner:
             current = self._controller_now()
             call = ToolCall(call.tool, {**call.args, "current": current}) if current else call
         if call.tool in PLANT_TOOLS and self.context.plant is None:
-            return self._remote(call)
-        return registry.invoke(call.tool, call.args, self.context)
+            return self._remote(call)  # MeshBusy (over a rate limit or the what-if budget) goes up: HTTP 429
+        result = registry.invoke(call.tool, call.args, self.context)
+        if result.retry_after_s is not None:
+            raise RateLimited(f"the {call.tool} tool: {result.error}", result.retry_after_s)
+        return result
 
     def _controller_now(self) -> str | None:
         """The configured controller (else the one of the last applied action), for a controller what-if."""

@@ -7,6 +7,7 @@ The API token is a secret: it comes from ``LCMESH_API_TOKEN`` or the file named 
 
 from __future__ import annotations
 
+import ipaddress
 from typing import Annotated, Literal
 
 from pydantic import Field, SecretStr, field_validator
@@ -47,14 +48,22 @@ class UiSettings(BaseSettings):
     )
     sse_state_hz: float = Field(4.0, gt=0, le=100, description="plant states per second sent to each live page")
     sse_queue: int = Field(256, ge=8, description="events buffered per live client before the oldest are dropped")
+    sse_max_clients: int = Field(64, ge=1, le=10_000, description="live pages (server-sent events) served at "
+                                 "once; one more is answered 503 with Retry-After")  # fmt: skip
+    trusted_proxies: Annotated[list[str], NoDecode] = Field(
+        [], description="addresses of reverse proxies whose X-Forwarded-For / X-Forwarded-Proto count (comma list "
+        "of IP addresses); empty: every client is its TCP peer, whatever headers it sends"
+    )
     decisions_kept: int = Field(500, ge=10, description="recent decisions and explanations held in memory")
     history_max_points: int = Field(5000, ge=10, le=200_000, description="most rows one /api/history answer holds")
     bus_timeout_s: float = Field(3.0, gt=0, le=60, description="wait this long for a queryable (config, tools)")
     tools_rate_per_s: float = Field(5.0, gt=0, le=10_000, description="queries a second each data tool's "
                                     "tools/{name} answers after its burst; more get 'rate limited'")  # fmt: skip
     tools_burst: int = Field(20, ge=1, le=100_000, description="queries each data tool's queryable answers at once")
+    proposal_max_age_s: float = Field(300.0, gt=0, le=86_400, description="a chat proposal confirmed later than this "
+                                      "is refused (410): its setpoints were read from the plant then")  # fmt: skip
 
-    @field_validator("cors_origins", "allowed_hosts", mode="before")
+    @field_validator("cors_origins", "allowed_hosts", "trusted_proxies", mode="before")
     @classmethod
     def _split(cls, value: object) -> object:
         if isinstance(value, str):
@@ -70,4 +79,15 @@ class UiSettings(BaseSettings):
                     parse_host(entry)
                 except ValueError as exc:
                     raise ValueError(f"`allowed_hosts[{i}]`: {exc}") from None
+        return value
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _proxies(cls, value: list[str]) -> list[str]:
+        for i, entry in enumerate(value):
+            try:
+                ipaddress.ip_address(entry)
+            except ValueError:
+                raise ValueError(f"`trusted_proxies[{i}]` must be an IP address like 127.0.0.1 or ::1, got {entry!r}"
+                                 ) from None
         return value

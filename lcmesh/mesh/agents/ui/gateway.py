@@ -1,8 +1,10 @@
 """The UI's requests to other agents over the bus: configuration changes and toolbox queries.
 
-Two failure kinds the API maps to HTTP: ``MeshUnavailable`` (nobody answers: 503 with the
-reason) and ``MeshRefused`` (the agent answered with an error, e.g. a field out of range: 422,
-or 409 for a version conflict).
+Three failure kinds the API maps to HTTP: ``MeshUnavailable`` (nobody answers: 503 with the
+reason), ``MeshBusy`` (the agent refused over a rate limit or the what-if budget: 429 with
+``Retry-After``) and ``MeshRefused`` (the agent answered with an error, e.g. a field out of range:
+422, or 409 for a version conflict). Tools are asked on ``tools/{name}/{role}``, the key only this
+session's role may ask (docs/mesh.md, Security).
 """
 
 from __future__ import annotations
@@ -14,7 +16,8 @@ from pydantic import BaseModel, ValidationError
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.bus import Bus, BusError
-from lcmesh.mesh.messages import ConfigDoc, ConfigUpdate
+from lcmesh.mesh.messages import ConfigDoc, ConfigUpdate, check_finite
+from lcmesh.mesh.ratelimit import RateLimited, retry_after_s
 
 
 class MeshUnavailable(RuntimeError):
@@ -27,6 +30,10 @@ class MeshRefused(ValueError):
     def __init__(self, message: str, conflict: bool = False):
         super().__init__(message)
         self.conflict = conflict
+
+
+class MeshBusy(RateLimited):
+    """The agent refused over a rate limit or budget; nothing ran. `retry_after_s` says when to ask again."""
 
 
 class MeshGateway:
@@ -46,6 +53,9 @@ class MeshGateway:
             if reply.ok:
                 return reply.payload
         message = replies[0].payload.decode(errors="replace")
+        wait_s = retry_after_s(message)
+        if wait_s is not None:
+            raise MeshBusy(f"{what}: {message}", wait_s)
         raise MeshRefused(message, conflict="`expected_version`" in message)
 
     def config(self) -> ConfigDoc:
@@ -62,9 +72,14 @@ class MeshGateway:
         return _parse(ConfigDoc, data, "the Configuration agent")
 
     def tool(self, name: str, request: dict[str, Any], timeout_s: float = 10.0) -> dict[str, Any]:
-        """A toolbox tool's result (served by the Sensor); MeshRefused carries the tool's error."""
-        data = self._ask(keys.tool(self.site, name), json.dumps(request).encode(), f"the toolbox tool {name!r}",
-                         timeout_s)  # fmt: skip
+        """A toolbox tool's result (served by the Sensor); MeshRefused carries the tool's error, MeshBusy a limit."""
+        key = keys.tool(self.site, name, self.bus.role or "ui")
+        try:
+            check_finite(request)
+        except ValueError as exc:
+            raise MeshRefused(f"the toolbox tool {name!r}: {exc}") from None
+        body = json.dumps(request).encode()
+        data = self._ask(key, body, f"the toolbox tool {name!r}", timeout_s)
         try:
             answer = json.loads(data)
         except ValueError:

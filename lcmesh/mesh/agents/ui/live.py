@@ -26,17 +26,22 @@ log = logging.getLogger("lcmesh.mesh.agents.ui")
 
 
 END = "__end__"
+MAX_AGENTS = 64  # agents the table (and /metrics) keeps; the demo runs 7, a scaled-out mesh a few dozen
 
 
 def dumps(data: Any) -> bytes:
     return json.dumps(data, separators=(",", ":"), default=str).encode()
 
 
-class EventHub:
-    """Fan-out of (event name, JSON bytes) to the SSE clients' queues on the server loop."""
+class HubFull(RuntimeError):
+    """Every one of the hub's `max_clients` places is taken."""
 
-    def __init__(self, queue_size: int = 256):
-        self.queue_size = queue_size
+
+class EventHub:
+    """Fan-out of (event name, JSON bytes) to at most `max_clients` SSE clients' queues on the server loop."""
+
+    def __init__(self, queue_size: int = 256, max_clients: int = 64):
+        self.queue_size, self.max_clients = queue_size, max_clients
         self.loop: asyncio.AbstractEventLoop | None = None
         self._queues: set[asyncio.Queue] = set()
         self.dropped = 0
@@ -49,7 +54,9 @@ class EventHub:
         return len(self._queues)
 
     def open(self) -> asyncio.Queue:
-        """A new client queue (call on the server loop)."""
+        """A new client queue (call on the server loop); HubFull when `max_clients` are connected."""
+        if len(self._queues) >= self.max_clients:
+            raise HubFull(f"{self.max_clients} live clients are connected, the most LCMESH_UI_SSE_MAX_CLIENTS allows")
         queue: asyncio.Queue = asyncio.Queue(self.queue_size)
         self._queues.add(queue)
         return queue
@@ -87,8 +94,9 @@ def _same_run(previous: AppliedAction | None, applied: AppliedAction) -> Applied
 class LiveStore:
     """The latest plant state, decisions, explanations, alerts, agents and events seen on the bus."""
 
-    def __init__(self, system: SystemDescription, hub: EventHub, *, keep: int = 500, state_hz: float = 4.0):
-        self.system, self.hub, self.keep = system, hub, keep
+    def __init__(self, system: SystemDescription, hub: EventHub, *, keep: int = 500, state_hz: float = 4.0,
+                 max_agents: int = MAX_AGENTS):
+        self.system, self.hub, self.keep, self.max_agents = system, hub, keep, max_agents
         self._lock = threading.Lock()
         self.state: PlantState | None = None
         self.view: dict | None = None
@@ -200,17 +208,31 @@ class LiveStore:
             self.events.append(event)
         self.hub.publish("event", event.model_dump_json().encode())
 
+    def _agent_entry(self, agent_id: str, role: str) -> dict | None:
+        """The table row of `agent_id` (created if there is room; None past ``max_agents``: counted, not kept, so a
+        role that makes up agent ids can not grow the table or the metrics' series). Call under the lock."""
+        entry = self.agents.get(agent_id)
+        if entry is None:
+            if len(self.agents) >= self.max_agents:
+                self.counts["agents_over_cap"] += 1
+                return None
+            entry = self.agents[agent_id] = {"agent_id": agent_id, "role": role, "stats": None, "stats_at": None,
+                                             "alive": False, "since": None}  # fmt: skip
+        return entry
+
     def on_liveliness(self, role: str, agent_id: str, alive: bool, at: datetime) -> None:
         with self._lock:
-            entry = self.agents.setdefault(agent_id, {"agent_id": agent_id, "role": role, "stats": None,
-                                                      "stats_at": None})  # fmt: skip
+            entry = self._agent_entry(agent_id, role)
+            if entry is None:
+                return
             entry.update(role=role, alive=alive, since=at)
         self.hub.publish("agents", dumps(self.agents_view()))
 
     def on_stats(self, stats: AgentStats) -> None:
         with self._lock:
-            entry = self.agents.setdefault(stats.agent_id, {"agent_id": stats.agent_id, "role": stats.role,
-                                                            "alive": False, "since": None})  # fmt: skip
+            entry = self._agent_entry(stats.agent_id, stats.role)
+            if entry is None:
+                return
             entry["stats"], entry["stats_at"] = stats, time.monotonic()
             if stats.role == "control":
                 self.decided_by = stats.details.get("decided_by")

@@ -210,8 +210,22 @@ def make_registry(collector: UiCollector) -> tuple[CollectorRegistry, Histogram]
     return registry, latency
 
 
+# Label values come from closed sets, so a client can not add series: a made-up method or an unknown path is `other`.
+KNOWN_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
+OTHER = "other"
+
+
+def request_labels(scope) -> tuple[str, str]:
+    """(route template, method) of a finished request, each from a closed set (`other` for anything else)."""
+    route = getattr(scope.get("route"), "path", None)  # the template (``/api/cabinets/{cabinet}``), never the raw path
+    if route is None:
+        route = "/static" if scope["path"].startswith("/static/") else OTHER
+    method = scope["method"] if scope["method"] in KNOWN_METHODS else OTHER
+    return route, method
+
+
 class LatencyMiddleware:
-    """Pure ASGI middleware observing request duration by route template (not by raw path: bounded labels)."""
+    """Pure ASGI middleware observing request duration by route template and method (closed label sets)."""
 
     def __init__(self, app, histogram: Histogram, skip: tuple[str, ...] = ("/api/events",)):
         self.app, self.histogram, self.skip = app, histogram, skip
@@ -224,6 +238,4 @@ class LatencyMiddleware:
         try:
             await self.app(scope, receive, send)
         finally:
-            route = scope.get("route")
-            path = getattr(route, "path", None) or ("/static" if scope["path"].startswith("/static/") else "unmatched")
-            self.histogram.labels(path, scope["method"]).observe(time.perf_counter() - t0)
+            self.histogram.labels(*request_labels(scope)).observe(time.perf_counter() - t0)

@@ -9,7 +9,9 @@ from __future__ import annotations
 import typing
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator, model_validator
+from pydantic import (
+    AwareDatetime, BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator, model_validator,
+)  # fmt: skip
 
 from lcmesh.mesh.agents.ui.facts import ChatFact
 from lcmesh.mesh.messages import MeshConfig
@@ -58,10 +60,13 @@ ERRORS: dict[int, dict[str, Any]] = {
     400: {"description": "the body is not valid JSON text (UTF-8)"},
     401: {"description": "missing or wrong bearer token", "headers": {"WWW-Authenticate": _header("Bearer")}},
     404: {"description": "no such cabinet, tower or run; `detail` gives the valid range"},
-    409: {"description": "`expected_version` is not the current version"},
+    409: {"description": "`expected_version` (or a chat proposal's `proposal.config_version`) is not the current "
+               "version"},
+    410: {"description": "a chat proposal older than LCMESH_UI_PROPOSAL_MAX_AGE_S: ask the chat again"},
     413: {"description": "the request body is larger than 256 KiB"},
     422: {"description": "invalid input; `detail` names the field and says what would be valid"},
-    429: {"description": "too many questions; retry after `Retry-After` seconds",
+    429: {"description": "too many questions, or a tool over its rate limit or the what-if budget; retry after "
+               "`Retry-After` seconds",
           "headers": {"Retry-After": _header("seconds to wait")}},
     503: {"description": "the mesh is not ready; `detail` says why",
           "headers": {"Retry-After": _header("seconds to wait")}},
@@ -319,6 +324,7 @@ class ModeRequest(_In):
     mode: Literal["auto", "manual"] | None = Field(None, description="manual holds the current action unless "
                                                    "setpoints are sent to /api/control/setpoints")  # fmt: skip
     reason: str = Field("", max_length=500)
+    proposal: ProposalStamp | None = Field(None, description="set by a chat proposal: refused once it has aged")
 
     @field_validator("controller", mode="before")
     @classmethod
@@ -345,6 +351,19 @@ Fraction = Annotated[float, Field(ge=0, le=1)]
 SETPOINT_FIELDS = ("supply_temp_setpoint_c", "dp_setpoint_psi", "lw_setpoint_c", "valve_fractions")
 
 
+class ProposalStamp(_In):
+    """Where a chat proposal's body came from: the configuration version it was made on, and when (UTC).
+
+    Confirming it after the configuration moved on is refused (409), after ``LCMESH_UI_PROPOSAL_MAX_AGE_S``
+    (5 min) too (410): its per-cabinet setpoints were read from the plant at `made_at`.
+    """
+
+    config_version: json_int(Field(ge=1, le=2**53)) | None = Field(  # type: ignore[valid-type]
+        None, description="the configuration version the proposal was made on (none: no configuration yet)"
+    )
+    made_at: AwareDatetime = Field(strict=False, description="when the chat made it, ISO 8601 with a time zone")
+
+
 class SetpointsRequest(_In):
     """Manual setpoints in operator units; a scalar applies to every selected cabinet (or tower)."""
 
@@ -362,6 +381,7 @@ class SetpointsRequest(_In):
         None, description="1-based cabinets a scalar or single split applies to (default: all)"
     )
     reason: str = Field("", max_length=500)
+    proposal: ProposalStamp | None = Field(None, description="set by a chat proposal: refused once it has aged")
 
     @model_validator(mode="after")
     def _something(self) -> "SetpointsRequest":

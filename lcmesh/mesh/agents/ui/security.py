@@ -2,7 +2,8 @@
 
 - Writes (config, controller mode, setpoints) need ``Authorization: Bearer <token>``. The token
   comes from ``LCMESH_API_TOKEN`` or the file ``LCMESH_API_TOKEN_FILE`` (created with a random
-  token when missing if ``LCMESH_UI_CREATE_TOKEN_FILE=true``). Bound to loopback with neither
+  token when missing if ``LCMESH_UI_CREATE_TOKEN_FILE=true``; refused if group or others may read
+  or write it). Bound to loopback with neither
   set, the agent makes a random token once and writes it to ``DATA_DIR/ui/api-token`` (mode
   0600) so a local operator can read it; a restarted UI (the orchestrator restarts a hung one)
   reads that file again, so the operators' token keeps working. Bound beyond loopback it refuses
@@ -10,7 +11,8 @@
 - Host allow-list: the bind host, 127.0.0.1, localhost and [::1] with the port, plus
   ``LCMESH_UI_ALLOWED_HOSTS`` (DNS rebinding; ``guards.HostCheck`` enforces it).
 - CORS: only the page's own origin (and ``LCMESH_UI_CORS_ORIGINS``) may call the API from a browser.
-- Chat: a token bucket per client address.
+- Chat: a token bucket per client address: the TCP peer, or what a proxy of
+  ``LCMESH_UI_TRUSTED_PROXIES`` forwards (the agent tells uvicorn; no other client's header counts).
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ def resolve_token(env_token: str | None, token_file: Path | None, host: str, dat
             text = Path(token_file).read_text().strip()
         except OSError as exc:
             raise InsecureBindError(f"`LCMESH_API_TOKEN_FILE` = {token_file} can not be read: {exc}") from None
+        _refuse_shared(Path(token_file))
         token = ApiToken(text, "file", Path(token_file))
     elif is_loopback(host):
         return _kept_or_generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
@@ -99,6 +102,19 @@ def resolve_token(env_token: str | None, token_file: Path | None, host: str, dat
     if not token.value:
         return _kept_or_generated(Path(data_dir) / "ui" / TOKEN_FILE_NAME)
     return token
+
+
+def _refuse_shared(path: Path) -> None:
+    """InsecureBindError if group or others may read or write the token file the operator named (as ssh refuses a key).
+
+    The file is the operator's: it is not made private behind their back (a copy may already have leaked).
+    """
+    mode = stat.S_IMODE(path.stat().st_mode)
+    if mode & 0o077:
+        raise InsecureBindError(
+            f"`LCMESH_API_TOKEN_FILE` = {path} has mode {mode:04o}: group or others may read or write the API token; "
+            f"run `chmod 600 {path}` (and choose a new token if others could read it)"
+        )
 
 
 def _kept_or_generated(path: Path) -> ApiToken:

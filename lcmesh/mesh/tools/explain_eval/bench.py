@@ -58,7 +58,7 @@ def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
         "evaluate_s": t2 - t1, "aggregate": agg, "per_level": per_level,
         "targets_met": {k: agg[k] >= v for k, v in TARGETS.items()},
     }  # fmt: skip
-    result["corpus"] = {part: _without_rows(corpus_verdict(part)) for part in ("fresh", "test", "dev")}
+    result["corpus"] = {part: _without_rows(corpus_verdict(part)) for part in ("fresh2", "fresh", "test", "dev")}
     result["testset"] = testset_verdict(testset_dir)
     return result
 
@@ -82,6 +82,9 @@ FRESH = "fresh.jsonl"  # issue 24: a fresh test part, written on the test decisi
 
 
 FRESH_DEV = "fresh_dev.jsonl"  # its tuning twin: the same kinds of texts by another outside author, on dev decisions
+FRESH2 = "fresh2.jsonl"  # issue 35: a new test part by a third outside author (the decision records and a plain brief
+# on each flaw kind, never the judge's code, texts or misses), written before any change for issue 35; never tuned on
+FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2}
 
 
 def load_fresh(folder: Path = CORPUS, name: str = FRESH) -> list[dict]:
@@ -103,14 +106,13 @@ def corpus_verdict(split: str, folder: Path = CORPUS, cfg=None) -> dict:
     """Per flag kind precision and recall over one part (``dev`` or ``test``) of the corpus, recall per planted
     error kind and per style, and the share of correct texts that get any flag."""
     records, texts = load_corpus(folder)
-    fresh = {"fresh": FRESH, "fresh_dev": FRESH_DEV}
-    part = load_fresh(folder, fresh[split]) if split in fresh else [t for t in texts if t["split"] == split]
+    part = load_fresh(folder, FRESH_PARTS[split]) if split in FRESH_PARTS else [t for t in texts if t["split"] == split]
     rows = []
     t0 = time.perf_counter()
     for t in part:
         got = sorted({f["kind"] for f in evaluate_record(corpus_record(records, t), cfg)["flags"]})
         rows.append({"id": t["id"], "style": t["style"], "source": t["source"], "error": t["error"],
-                     "expected": t["expected_flags"], "flagged": got})  # fmt: skip
+                     "lang": t.get("lang", "en"), "expected": t["expected_flags"], "flagged": got})  # fmt: skip
     seconds = time.perf_counter() - t0
     per_flag = {}
     for kind in JUDGED_KINDS:
@@ -126,21 +128,27 @@ def corpus_verdict(split: str, folder: Path = CORPUS, cfg=None) -> dict:
             e = per_error.setdefault(r["error"], {"texts": 0, "found": 0})
             e["texts"] += 1
             e["found"] += all(k in r["flagged"] for k in r["expected"])
-    per_style: dict[str, dict] = {}
-    for r in rows:
-        st = per_style.setdefault(r["style"], {"correct": 0, "correct_flagged": 0, "flawed": 0, "flawed_found": 0})
-        if not r["expected"]:
-            st["correct"] += 1
-            st["correct_flagged"] += bool(r["flagged"])
-        else:
-            st["flawed"] += 1
-            st["flawed_found"] += all(k in r["flagged"] for k in r["expected"])
+    per_style, per_lang = _tally(rows, "style"), _tally(rows, "lang")
     correct = [r for r in rows if not r["expected"]]
-    return {"split": split, "texts": len(rows), "correct_texts": len(correct),
+    return {"split": split, "per_lang": per_lang, "texts": len(rows), "correct_texts": len(correct),
             "correct_flagged": sum(bool(r["flagged"]) for r in correct),
             "correct_flagged_share": sum(bool(r["flagged"]) for r in correct) / len(correct) if correct else 0.0,
             "per_flag": per_flag, "per_error": per_error, "per_style": per_style, "evaluate_s": seconds,
             "rows": rows}  # fmt: skip
+
+
+def _tally(rows: list[dict], by: str) -> dict[str, dict]:
+    """Correct texts flagged and flawed texts found, per value of `by` (style, language)."""
+    out: dict[str, dict] = {}
+    for r in rows:
+        t = out.setdefault(r[by], {"correct": 0, "correct_flagged": 0, "flawed": 0, "flawed_found": 0})
+        if not r["expected"]:
+            t["correct"] += 1
+            t["correct_flagged"] += bool(r["flagged"])
+        else:
+            t["flawed"] += 1
+            t["flawed_found"] += all(k in r["flagged"] for k in r["expected"])
+    return out
 
 
 def testset_verdict(folder: Path = TESTSET) -> dict:
@@ -239,8 +247,30 @@ def _fig(x: float | None) -> str:
 def corpus_markdown(corpus: dict) -> list[str]:
     """The outside corpus's tables: the fresh part (when there is one) and the test part are the evidence, the dev
     part (tuned on) is shown beside them."""
-    lines = fresh_markdown(corpus["fresh"], corpus["test"], corpus["dev"]) + [""] if corpus.get("fresh") else []
+    lines = fresh2_markdown(corpus["fresh2"]) + [""] if corpus.get("fresh2", {}).get("texts") else []
+    lines += fresh_markdown(corpus["fresh"], corpus["test"], corpus["dev"]) + [""] if corpus.get("fresh") else []
     return lines + _old_corpus_markdown(corpus)
+
+
+def fresh2_markdown(part: dict) -> list[str]:
+    """Issue 35's new test part: precision and recall per flag kind, and correct texts flagged per language."""
+    lines = [
+        f"**New test part** (`corpus/{FRESH2}`, issue 35): {part['texts']} texts ({part['correct_texts']} correct) "
+        "on the test decisions by a third outside author, given the decision records and a plain brief on each flaw "
+        "kind; written before any change for issue 35; aggregates only were read.",
+        "",
+        "| flag kind | precision | recall | texts with the flaw | target |",
+        "|---|---|---|---|---|",
+    ]
+    for kind, f in part["per_flag"].items():
+        lines.append(f"| {kind} | {_fig(f['precision'])} | {_fig(f['recall'])} | {f['expected']} | "
+                     f"{'>= 0.9 / >= 0.95' if f['expected'] else ''} |")  # fmt: skip
+    lines.append(f"| correct texts with any flag | {part['correct_flagged']} / {part['correct_texts']} = "
+                 f"{part['correct_flagged_share']:.3f} | | | <= 0.02 |")
+    langs = sorted(part.get("per_lang", {}).items())
+    lines += ["", "By language (correct texts flagged / flawed texts found): " + ", ".join(
+        f"{k} {v['correct_flagged']}/{v['correct']}, {v['flawed_found']}/{v['flawed']}" for k, v in langs) + "."]
+    return lines
 
 
 def fresh_markdown(fresh: dict, test: dict, dev: dict) -> list[str]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 
 from fastapi import APIRouter, HTTPException, Request
@@ -28,4 +29,21 @@ def chat(request: Request, body: ChatQuestion) -> dict:
     if wait_s > 0:
         raise HTTPException(429, f"too many chat questions from {client}; retry in {wait_s:.1f} s",
                             headers={"Retry-After": str(math.ceil(wait_s))})  # fmt: skip
-    return ctx.chat.ask(body.message)
+    return stamp_proposal(ctx.chat.ask(body.message), ctx)
+
+
+def stamp_proposal(reply: dict, ctx) -> dict:
+    """`reply` with its proposed command stamped: the config version and time it was made, and when it expires.
+
+    The stamp travels in the command's body (``proposal``), so confirming it later than
+    ``LCMESH_UI_PROPOSAL_MAX_AGE_S`` or on another configuration version is refused (routes/control.py).
+    """
+    command = reply.get("proposed_command")
+    if not command:
+        return reply
+    doc = ctx.config_doc()
+    made_at = ctx.clock()
+    stamp = {"config_version": doc.version if doc is not None else None, "made_at": made_at.isoformat()}
+    expires_at = made_at + dt.timedelta(seconds=ctx.ui.proposal_max_age_s)
+    command = {**command, "body": {**command["body"], "proposal": stamp}, "expires_at": expires_at.isoformat()}
+    return {**reply, "proposed_command": command}

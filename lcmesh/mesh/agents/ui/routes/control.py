@@ -20,7 +20,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from lcmesh.mesh.agents.ui.sources import NotReady
 from lcmesh.mesh.agents.ui.schemas import (
-    PSI_MAX, TEMP_C_MAX, ConfigChange, ControlAnswer, ModeRequest, SetpointsRequest, errors,
+    PSI_MAX, TEMP_C_MAX, ConfigChange, ControlAnswer, ModeRequest, ProposalStamp, SetpointsRequest, errors,
 )  # fmt: skip
 from lcmesh.mesh.agents.ui.security import token_matches
 from lcmesh.mesh.agents.ui.views import c, clamp_view, psi
@@ -32,6 +32,7 @@ from lcmesh.twin.system import PSI_TO_PA
 router = APIRouter()
 bearer = HTTPBearer(auto_error=False, description="the API token (LCMESH_API_TOKEN or LCMESH_API_TOKEN_FILE)")
 AUTH = errors(400, 401, 413, 422, 503)
+CONFIRM = errors(409, 410)  # a chat proposal confirmed on another config version, or too late
 K0 = 273.15
 
 
@@ -60,6 +61,32 @@ def put_config(request: Request, body: ConfigChange, caller: Caller) -> dict:
     return doc.model_dump(mode="json")
 
 
+def check_proposal(ctx, stamp: ProposalStamp | None) -> int | None:
+    """The config version a confirmed chat proposal needs (None: not a proposal, or made before any config).
+
+    410 when it is older than ``LCMESH_UI_PROPOSAL_MAX_AGE_S``; 409 when the configuration moved on since it
+    was made (the Configuration agent checks the version again when it applies the change).
+    """
+    if stamp is None:
+        return None
+    age_s = (ctx.clock() - stamp.made_at).total_seconds()
+    limit_s = ctx.ui.proposal_max_age_s
+    if age_s > limit_s:
+        raise HTTPException(410, f"`proposal.made_at`: this chat proposal was made {age_s:.0f} s ago, at "
+                                 f"{stamp.made_at.isoformat()}; proposals expire after {limit_s:g} s "
+                                 "(LCMESH_UI_PROPOSAL_MAX_AGE_S) since the plant has moved on: ask the chat "
+                                 "again")  # fmt: skip
+    if age_s < -60:
+        raise HTTPException(422, f"`proposal.made_at` is {-age_s:.0f} s in the future ({stamp.made_at.isoformat()}); "
+                                 "send the proposal as the chat made it")  # fmt: skip
+    doc = ctx.config_doc()
+    if stamp.config_version is not None and doc is not None and doc.version != stamp.config_version:
+        raise HTTPException(409, f"`proposal.config_version`: the configuration changed since this chat "
+                                 f"proposal (version {stamp.config_version} then, {doc.version} now): ask the chat "
+                                 "again")  # fmt: skip
+    return stamp.config_version
+
+
 def _answer(doc, detail: str, clamps: list | None = None) -> ControlAnswer:
     manual = doc.config.manual_action
     view = None
@@ -72,10 +99,11 @@ def _answer(doc, detail: str, clamps: list | None = None) -> ControlAnswer:
                          manual_action=view, clamps_expected=clamps or [], detail=detail)  # fmt: skip
 
 
-@router.post("/api/control/mode", response_model=ControlAnswer, tags=["write"], responses=AUTH)
+@router.post("/api/control/mode", response_model=ControlAnswer, tags=["write"], responses={**AUTH, **CONFIRM})
 def control_mode(request: Request, body: ModeRequest, caller: Caller) -> ControlAnswer:
     """Switch the controller and/or auto / manual; manual without setpoints holds the action applied now."""
     ctx = request.app.state.ctx
+    expected_version = check_proposal(ctx, body.proposal)
     changes: dict = {}
     if body.controller is not None:
         changes["controller"] = body.controller
@@ -86,7 +114,8 @@ def control_mode(request: Request, body: ModeRequest, caller: Caller) -> Control
             if applied is None:
                 raise NotReady("no applied action yet to hold; send setpoints to /api/control/setpoints instead")
             changes["manual_action"] = applied.action.model_dump()
-    doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "controller switch from the API")
+    doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "controller switch from the API",
+                                              expected_version)  # fmt: skip
     return _answer(doc, f"controller {doc.config.controller}, mode {doc.config.mode}")
 
 
@@ -115,7 +144,8 @@ def _valves(value: list, selected: list[int], current: np.ndarray) -> np.ndarray
     return out
 
 
-@router.post("/api/control/setpoints", response_model=ControlAnswer, tags=["write"], responses={**AUTH, **errors(404)})
+@router.post("/api/control/setpoints", response_model=ControlAnswer, tags=["write"],
+             responses={**AUTH, **CONFIRM, **errors(404)})
 def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) -> ControlAnswer:
     """Manual setpoints (°C, psi, fractions) on top of the action applied now; switches to manual mode.
 
@@ -123,6 +153,7 @@ def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) 
     clamps recorded with every step; `clamps_expected` previews them against the current limits.
     """
     ctx = request.app.state.ctx
+    expected_version = check_proposal(ctx, body.proposal)
     system = ctx.system
     applied = ctx.store.latest_applied()
     state = ctx.store.state
@@ -159,6 +190,7 @@ def control_setpoints(request: Request, body: SetpointsRequest, caller: Caller) 
         preview = apply_guardrails(candidate, base, state.wet_bulb_k, limits, system)
         clamps = [clamp_view(cl.model_dump()) for cl in preview.clamps]
     changes = {"mode": "manual", "manual_action": ActionModel.from_action(candidate).model_dump()}
-    doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "manual setpoints from the API")
+    doc = ctx.require_gateway().update_config(changes, _by(caller), body.reason or "manual setpoints from the API",
+                                              expected_version)  # fmt: skip
     detail = "manual setpoints set" + (f"; the guardrails will clamp {len(clamps)} value(s)" if clamps else "")
     return _answer(doc, detail, clamps)

@@ -34,10 +34,10 @@ def _ctx(request: Request):
 
 @router.get("/", include_in_schema=False)
 async def page(request: Request) -> FileResponse:
-    from lcmesh.mesh.agents.ui.app import PAGE_CSP, STATIC_DIR
+    """The web page (its CSP and frame headers come from ``app.SecurityHeaders``, as on every answer)."""
+    from lcmesh.mesh.agents.ui.app import STATIC_DIR
 
-    return FileResponse(STATIC_DIR / "index.html", headers={"Content-Security-Policy": PAGE_CSP,
-                                                            "X-Content-Type-Options": "nosniff"})  # fmt: skip
+    return FileResponse(STATIC_DIR / "index.html")
 
 
 @router.get("/api/health", response_model=Health, tags=["read"])

@@ -3,7 +3,8 @@
 Events: ``hello`` (a snapshot on connect: state, agents, recent decisions, active alerts,
 config), then ``state`` (at most ``LCMESH_UI_SSE_STATE_HZ`` per second), ``decision``,
 ``explanation``, ``alert``, ``event`` (agent events), ``agents`` (every 2 s) and ``config``.
-A comment line every 15 s keeps proxies from closing an idle stream.
+A comment line every 15 s keeps proxies from closing an idle stream. At most
+``LCMESH_UI_SSE_MAX_CLIENTS`` streams at once; one more is answered 503 with ``Retry-After``.
 """
 
 from __future__ import annotations
@@ -12,14 +13,16 @@ import asyncio
 import json
 import time
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import StreamingResponse
+from starlette.background import BackgroundTask
 
-from lcmesh.mesh.agents.ui.live import END, dumps
+from lcmesh.mesh.agents.ui.live import END, HubFull, dumps
 
 router = APIRouter()
 KEEPALIVE_S = 15.0
 AGENTS_EVERY_S = 2.0
+RETRY_FULL_S = 10
 
 
 def _frame(event: str, data: bytes) -> bytes:
@@ -42,11 +45,16 @@ def _hello(ctx) -> bytes:
 
 
 @router.get("/api/events", tags=["read"], response_class=StreamingResponse,
-            responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events"}})  # fmt: skip
+            responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events"},
+                       503: {"description": "LCMESH_UI_SSE_MAX_CLIENTS pages connected (Retry-After)"}})  # fmt: skip
 async def events(request: Request) -> StreamingResponse:
     """Live updates for the web page (server-sent events)."""
     ctx = request.app.state.ctx
-    queue = ctx.hub.open()
+    try:
+        queue = ctx.hub.open()
+    except HubFull as exc:  # each stream holds a connection and a queue: the count is bounded
+        raise HTTPException(503, f"{exc}; retry later or close another live page",
+                            headers={"Retry-After": str(RETRY_FULL_S)}) from None  # fmt: skip
 
     async def stream():
         try:
@@ -69,5 +77,6 @@ async def events(request: Request) -> StreamingResponse:
         finally:
             ctx.hub.close(queue)
 
-    return StreamingResponse(stream(), media_type="text/event-stream",
+    # the place is given back by the stream's `finally`, or by the background task if the stream never started
+    return StreamingResponse(stream(), media_type="text/event-stream", background=BackgroundTask(ctx.hub.close, queue),
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})  # fmt: skip
