@@ -192,8 +192,9 @@ def bench_lifecycle(
     if trials:
         result = run_kill_after_ui(trials, load, say=console.print)
         print(render_kill_after_ui(result))
-        json_out = json_out or Path("runs/bench/lifecycle_kill_after_ui.json")
-        write_json(json_out, result)
+        write_bench(json_out or Path("runs/bench/lifecycle_kill_after_ui.json"), markdown, "lifecycle_kill", result,
+                    render=lambda r: "### SIGKILL as soon as the UI answers, cores busy (`lcmesh bench lifecycle "
+                    "--trials 20 --load 2 --markdown BENCHMARKS.md`)\n\n" + render_kill_after_ui(r))  # fmt: skip
         return
     if load:
         fail("`--load` goes with `--trials` (the SIGKILL race); the full lifecycle bench runs on a quiet machine")

@@ -257,10 +257,12 @@ class HistoryWriter:
                        doc.config.model_dump_json(), doc.sent_at.isoformat()))])  # fmt: skip
 
     def add_event(self, msg: AgentEvent) -> None:
+        # once: an event comes live and again in its agent's recent events (fetched when the writer starts)
         self._write([("INSERT INTO agent_events (kind, role, agent_id, detail, pid, source, created_at) "
-                      "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                      (msg.kind, msg.role, msg.agent_id, msg.detail, msg.pid, msg.source,
-                       msg.sent_at.isoformat()))])  # fmt: skip
+                      "SELECT ?, ?, ?, ?, ?, ?, ? WHERE NOT EXISTS (SELECT 1 FROM agent_events WHERE source = ? AND "
+                      "created_at = ? AND kind = ? AND agent_id = ?)",
+                      (msg.kind, msg.role, msg.agent_id, msg.detail, msg.pid, msg.source, msg.sent_at.isoformat(),
+                       msg.source, msg.sent_at.isoformat(), msg.kind, msg.agent_id))])  # fmt: skip
 
     def reader(self) -> "HistoryReader":
         return HistoryReader(self.path)

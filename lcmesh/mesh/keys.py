@@ -78,6 +78,11 @@ def events(site: str, role: str = "*") -> str:
     return f"{site_prefix(site)}/events/{role if role == '*' else segment(role, 'role')}"
 
 
+def recent_events(site: str, role: str = "*") -> str:
+    """Queryable: a role's latest events (``RecentEvents``), for the history's writer after it starts."""
+    return f"{events(site, role)}/recent"
+
+
 def config(site: str, name: str = "all") -> str:
     """Configuration queryable; the Configuration agent also publishes each new version on ``config/all``."""
     return f"{site_prefix(site)}/config/{segment(name, 'config name')}"

@@ -251,6 +251,16 @@ class AgentEvent(Message):
     pid: int | None = None
 
 
+RECENT_EVENTS = 100  # events an agent keeps for the history's writer to fetch after it (re)starts
+
+
+class RecentEvents(Message):
+    """An agent's latest events, served on ``events/{role}/recent``: what the history's writer (the Sensor)
+    fetches when it starts, so events sent while it was down still reach history."""
+
+    events: list[AgentEvent] = Field(default_factory=list, max_length=RECENT_EVENTS)
+
+
 # --- configuration ---------------------------------------------------------------------------------
 class LlmSettings(_Part):
     """Settings of the LLM controller and explainer (used by the LLM issue)."""

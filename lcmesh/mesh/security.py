@@ -59,7 +59,7 @@ ALL_MESSAGES = (PUT, "delete", SUB, QUERY, *SERVE, TOKEN, *LIVE_READ)
 
 # keys below lcmesh/<site>/ that any authenticated role may read (subscribe, or GET the latest)
 READABLE = ("plant/state", "control/*/applied", "control/*/proposal", "explain/*", "maintenance/alerts",
-            "monitor/report", "monitor/stats/*", "events/*", "config/*")  # fmt: skip
+            "monitor/report", "monitor/stats/*", "events/*", "events/*/recent", "config/*")  # fmt: skip
 
 
 def _role_id(role: str) -> str:
@@ -87,6 +87,7 @@ def grants(role: str) -> dict[str, tuple[str, ...]]:
     """What `role` may send into the router: {key below lcmesh/<site>/: message kinds}. Reads come on top."""
     own = {
         f"events/{role}": (PUT,),  # the key names the sender's role: the history's writer relies on it
+        f"events/{role}/recent": SERVE,  # its latest events, fetched by the history's writer when it starts
         f"monitor/stats/{_role_id(role)}": (PUT,),
         f"alive/{role}/*": (TOKEN,),
     }

@@ -13,6 +13,7 @@ import socket
 import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable
 from typing import Any, ClassVar
 
@@ -20,7 +21,7 @@ import psutil
 
 from lcmesh.mesh import keys, security
 from lcmesh.mesh.bus import Bus, Declared
-from lcmesh.mesh.messages import AgentEvent, AgentStats, ConfigDoc, MeshConfig
+from lcmesh.mesh.messages import RECENT_EVENTS, AgentEvent, AgentStats, ConfigDoc, MeshConfig, RecentEvents
 from lcmesh.mesh.ratelimit import TokenBuckets
 from lcmesh.mesh.security import role_of_agent_id
 from lcmesh.mesh.settings import MeshSettings
@@ -77,6 +78,7 @@ class Agent:
         self._started_at = time.monotonic()
         self._process = psutil.Process()
         self._last_event_s: dict[str, float] = {}
+        self._recent_events: deque[AgentEvent] = deque(maxlen=RECENT_EVENTS)
         self.history = None
         self._config_verifier: security.ConfigVerifier | None = None
         # {"stats" or "tokens": how many claimed another identity than their key's}, once the agent follows them
@@ -89,6 +91,8 @@ class Agent:
         bus.on_error = self._on_handler_error
         self._started_at = time.monotonic()
         self._process.cpu_percent(None)
+        self.serve(keys.recent_events(self.site, self.role),
+                   lambda _payload: RecentEvents(source=self.agent_id, events=list(self._recent_events)))
         self.on_start()
         if self.stopping:  # told to stop during a long start-up (the Sensor's spin-up): no token, no stats
             return
@@ -211,6 +215,7 @@ class Agent:
             pid = os.getpid()
         event = AgentEvent(source=self.agent_id, kind=kind, role=role or self.role, agent_id=agent_id or self.agent_id,
                            detail=detail[:4000], pid=pid)  # fmt: skip
+        self._recent_events.append(event)
         self.bus.publish(keys.events(self.site, self.role), event, block=True)
 
     def watch_config(self, on_change: Callable[[MeshConfig, MeshConfig], None] | None = None) -> None:

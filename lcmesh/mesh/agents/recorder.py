@@ -12,9 +12,11 @@ over the bus, on keys the router lets only the producing role publish (docs/mesh
 
 A message whose ``source`` names an agent of another role than the key's is dropped and counted
 (``foreign``): the router vouches for the key, not for what the message says about itself. A config
-document must also pass the check every agent makes before adopting one (``Agent._unsigned``). Rows
-published while the Sensor is down are not recorded, except the current config document, which
-it reads when it starts. The bus callbacks only queue a row; a thread of the Sensor writes them, so
+document must also pass the check every agent makes before adopting one (``Agent._unsigned``). What
+is published while the Sensor is down: the current config document it reads when it starts, and every
+agent's latest events (``events/{role}/recent``, the last ``RECENT_EVENTS`` of each) it fetches then
+(an event already in history is not written twice); explanations and alerts need a plant step, so
+none are made while it is down, and a config version superseded while it was down is not recorded. The bus callbacks only queue a row; a thread of the Sensor writes them, so
 a step's transaction or a retention pass never holds up the bus thread that brings proposals.
 """
 
@@ -25,9 +27,10 @@ import queue
 from collections.abc import Callable
 
 from lcmesh.mesh import keys
+from lcmesh.mesh.bus import BusError
 from lcmesh.mesh.history import HistoryWriter
-from lcmesh.mesh.messages import AgentEvent, Alert, ConfigDoc, Explanation
-from lcmesh.mesh.security import role_of_agent_id
+from lcmesh.mesh.messages import AgentEvent, Alert, ConfigDoc, Explanation, RecentEvents
+from lcmesh.mesh.security import ROLES, role_of_agent_id
 
 log = logging.getLogger("lcmesh.mesh.agents.recorder")
 
@@ -51,6 +54,28 @@ class HistoryRecorder:
         agent.subscribe(keys.events(site), AgentEvent,
                         lambda msg, key: self._queue(key.rsplit("/", 1)[-1], msg, w.add_event), keyed=True)
         agent.spawn("record", lambda: self._write_loop(lambda: agent.stopping))
+        agent.spawn("record-missed", lambda: self._fetch_recent_events(agent))
+
+    def _fetch_recent_events(self, agent) -> None:
+        """Queue every agent's latest events once (those sent while this writer was down among them); the role is
+        the reply's key's, which the router lets only that role answer on."""
+        w = self.writer
+        try:  # one query per role: the router's ACL lets a role reply on its own key only, not to a wildcard query
+            replies = [r for role in ROLES for r in agent.bus.query(keys.recent_events(agent.site, role), timeout_s=5.0)]
+        except BusError as exc:  # the bus closing under a stop: nothing to fetch, the agent goes on
+            log.warning("could not fetch the agents' recent events: %s", exc)
+            return
+        for reply in replies:
+            if not reply.ok:
+                continue
+            try:
+                recent = RecentEvents.model_validate_json(reply.payload)
+            except ValueError as exc:
+                log.warning("ignoring the recent events on %s: %s", reply.key, exc)
+                continue
+            role = reply.key.rsplit("/", 2)[-2]
+            for event in recent.events:
+                self._queue(role, event, w.add_event)
 
     def _queue(self, role: str, msg, write: Callable) -> None:
         """Queue `msg`'s row if its source is an agent of `role`, the one role the router lets publish on its key."""

@@ -80,3 +80,21 @@ def test_rows_a_role_may_not_publish_never_reach_history(start_agent, bus_as, me
     assert not [e for e in history.agent_events(limit=100) if e["detail"] == "forged"]
     assert all(r["version"] != 1000 for r in history.config_changes())
     assert not [a for a in history.alerts() if a["alert_id"] == "forged"]
+
+
+def test_events_sent_while_the_writer_was_down_reach_history_once_it_starts(start_agent, bus_as, mesh_settings):
+    """An agent's events from before the Sensor ran (the Orchestrator's 'started' of the agents it starts first)
+    are fetched from its recent events when the Sensor starts; an event seen live and again there is one row."""
+    quiet = mesh_settings.model_copy(deep=True)
+    quiet.orchestration.supervise, quiet.orchestration.roles = False, []
+    orchestration = start_agent(OrchestrationAgent, quiet)
+    orchestration.emit_event("warning", "before the writer")
+    sensor = start_agent(SensorAgent)
+    history = HistoryReader(mesh_settings.history_file)
+    rows = lambda text: [e for e in history.agent_events(limit=500) if e["detail"] == text]  # noqa: E731
+    assert wait_until(lambda: rows("before the writer"), 20), "an event sent before the Sensor ran never landed"
+    orchestration.emit_event("warning", "after the writer")
+    assert wait_until(lambda: rows("after the writer"), 20)
+    sensor.recorder._fetch_recent_events(sensor)  # both events again, as a restarted writer would fetch them
+    assert wait_until(lambda: sensor.recorder._rows.empty(), 10)
+    assert len(rows("before the writer")) == 1 and len(rows("after the writer")) == 1
