@@ -214,3 +214,15 @@ def test_non_finite_numbers_in_a_config_change_on_the_bus_are_refused(mesh, oper
     with pytest.raises(BusError, match=r"`changes.guardrails.dp_max_pa` must be a finite number, got inf"):
         operator.request(key, ConfigDoc, body, timeout_s=10.0)
 
+
+
+def test_a_proposal_time_must_be_iso_text_not_a_number():
+    """schemathesis found `made_at: 0` taken as Unix seconds (answered 410 instead of 422): the schema says text."""
+    import pydantic
+
+    from lcmesh.mesh.agents.ui.schemas import ProposalStamp
+
+    assert ProposalStamp.model_validate({"config_version": 1, "made_at": "2026-11-27T10:00:00+00:00"}).made_at.year == 2026
+    for bad in (0, 1.5e9, None):
+        with pytest.raises(pydantic.ValidationError, match="made_at"):
+            ProposalStamp.model_validate({"config_version": 1, "made_at": bad})

@@ -363,6 +363,15 @@ class ProposalStamp(_In):
     )
     made_at: AwareDatetime = Field(strict=False, description="when the chat made it, ISO 8601 with a time zone")
 
+    @field_validator("made_at", mode="before")
+    @classmethod
+    def _iso_text(cls, value: Any) -> Any:
+        """The schema's date-time is a text: a number (pydantic would read Unix seconds) is refused (422)."""
+        if not isinstance(value, str):
+            raise ValueError(f"`made_at` must be ISO 8601 text with a time zone (2026-11-27T10:00:00+00:00), "
+                             f"got {type(value).__name__}")
+        return value
+
 
 class SetpointsRequest(_In):
     """Manual setpoints in operator units; a scalar applies to every selected cabinet (or tower)."""
