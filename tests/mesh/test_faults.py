@@ -8,6 +8,7 @@ the demo and every process it started.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -185,11 +186,19 @@ def test_garbage_on_every_key_is_dropped_and_counted(mesh):
         for other in buggy.values():
             other.close()
     queried = [keys.config(s.site, n) for n in ("all", "controller", "guardrails")] + [
-        keys.cmd(s.site, "sensor", "inject_fault"), keys.cmd(s.site, "orchestration", "status"),
-        keys.tool(s.site, "whatif", "orchestration"), keys.tool(s.site, "heat_balance", "orchestration")]  # fmt: skip
+        keys.cmd(s.site, "sensor", "inject_fault"), keys.cmd(s.site, "orchestration", "status")]  # fmt: skip
     for key in queried:
         for payload in junk[1:]:
             bus.query(key, payload, timeout_s=2.0)
+    operator = Bus.connect(s, "operator-buggy", role="operator")  # tools are asked on the asker's own role's key
+    try:
+        for name in ("whatif", "heat_balance"):
+            for payload in junk[1:]:
+                replies = operator.query(keys.tool(s.site, name, "operator"), payload, timeout_s=5.0)
+                # refused: an error reply (not JSON at all) or a ToolResult with ok false; never a result
+                assert replies and not any(r.ok and json.loads(r.payload)["ok"] for r in replies), (name, payload)
+    finally:
+        operator.close()
     time.sleep(1.5)
 
     def invalid(agent_id, key_suffix):

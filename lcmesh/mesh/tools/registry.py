@@ -390,6 +390,9 @@ def invoke(name: str, payload: Mapping[str, Any] | str | bytes | None, context: 
     try:
         if isinstance(payload, (str, bytes)):
             payload = json.loads(payload or "{}")
+        if payload is not None and not isinstance(payload, Mapping):  # `[]` or `0` are not "no arguments"
+            return ToolResult(ok=False, tool=name, error=f"the request must be a JSON object of {name}'s arguments "
+                              f"(or empty for the defaults), got {type(payload).__name__}")
         check_finite(payload)
         request = spec.request_model.model_validate(payload or {})
     except json.JSONDecodeError as exc:

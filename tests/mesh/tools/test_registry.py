@@ -193,3 +193,12 @@ def test_what_ifs_spend_the_plant_minutes_budget_before_they_wait_for_the_twin(p
     asker.join()
     assert waiting[0].ok and budget.running == 0
 
+
+
+def test_a_request_that_is_not_an_object_is_refused_not_read_as_defaults(ctx):
+    """`[]` (falsy) was read as "no arguments" and ran a what-if with its defaults (seen by the garbage test)."""
+    for payload in (b"[]", b"0", b'"x"', b"[1, 2]"):
+        result = invoke("heat_balance", payload, ctx)
+        assert not result.ok and "must be a JSON object" in result.error, payload
+    for empty in (b"", b"{}", None):  # no arguments: the defaults, as before
+        assert "must be a JSON object" not in (invoke("heat_balance", empty, ctx).error or "")
