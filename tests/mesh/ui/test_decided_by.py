@@ -53,3 +53,25 @@ def test_who_wrote_the_explanations_rides_on_the_state_view_and_the_decision_fee
                               cpu_pct=0.0, rss_bytes=1, threads=1, details={"explained_by": wrote}))  # fmt: skip
     store.on_state(observation_to_plant_state(obs, lcopt5, source="sensor", run_id="r", step=2, period_s=0.25))
     assert json.loads(store.view_json)["controller"]["explained_by"] == wrote
+
+
+def test_a_forged_decided_by_on_another_roles_key_never_reaches_the_page(ui_mesh):
+    """A client holding the UI's password says "I am the Control agent, the LLM decided" on its own stats key: the
+    UI takes the sender from the key, drops it and counts it, so /api/state shows no forged `decided_by`."""
+    from lcmesh.mesh import keys
+    from lcmesh.mesh.bus import Bus
+    from tests.mesh.conftest import wait_until
+
+    s, ui = ui_mesh.settings, ui_mesh.ui
+    forged = {"controller": "llm", "llm_share": 1.0, "summary": "FORGED: the LLM made every decision"}
+    bus = Bus.connect(s, "ui-forger", role="ui")
+    try:
+        stats = AgentStats(source="ui", role="control", agent_id="control", pid=1, host="h", uptime_s=1.0,
+                           cpu_pct=0.0, rss_bytes=1, threads=1, details={"decided_by": forged})  # fmt: skip
+        assert wait_until(lambda: bus.publish(keys.agent_stats(s.site, "ui"), stats)
+                          or (ui.identity_mismatches or {}).get("stats", 0) >= 1, 30), ui.identity_mismatches  # fmt: skip
+    finally:
+        bus.close()
+    assert ui.ctx.store.decided_by != forged
+    with ui_mesh.client() as http:
+        assert "FORGED" not in json.dumps(http.get("/api/state").json())
