@@ -26,9 +26,14 @@ _PREFIX = "rate limited: "
 _RETRY = re.compile(r"; retry in (\d+(?:\.\d+)?) s$")
 
 
+def _retry_s(wait_s: float) -> float:
+    """`wait_s` rounded up to a tenth of a second: never "retry in 0.0 s"."""
+    return math.ceil(wait_s * 10) / 10
+
+
 def limited_text(detail: str, wait_s: float) -> str:
     """The error text of a refusal over a limit: ``rate limited: {detail}; retry in X s`` (X never 0.0)."""
-    return f"{_PREFIX}{detail}; retry in {math.ceil(wait_s * 10) / 10:.1f} s"
+    return f"{_PREFIX}{detail}; retry in {_retry_s(wait_s):.1f} s"
 
 
 def retry_after_s(text: str) -> float | None:
@@ -48,7 +53,7 @@ class RateLimited(RuntimeError):
     @classmethod
     def over(cls, detail: str, wait_s: float) -> RateLimited:
         """The refusal whose text is ``limited_text(detail, wait_s)``."""
-        return cls(limited_text(detail, wait_s), math.ceil(wait_s * 10) / 10)
+        return cls(limited_text(detail, wait_s), _retry_s(wait_s))
 
 
 class TokenBuckets:

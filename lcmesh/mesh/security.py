@@ -166,13 +166,15 @@ def private_dir(path: Path) -> Path:
     return path
 
 
-def write_secret(path: Path, data: bytes | str) -> None:
-    """Write `data` to `path` created with mode 0600 (never world-readable, not even for a moment)."""
+def write_secret(path: Path, data: bytes | str, mode: int = 0o600) -> None:
+    """Write `data` to `path` atomically, created with `mode` (0600: never world-readable, not even for a moment);
+    the mode is set whatever the umask, so a public file (0644) is readable under a strict one too."""
     if isinstance(data, str):
         data = data.encode()
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
     try:
+        os.fchmod(fd, mode)
         os.write(fd, data)
     finally:
         os.close(fd)
@@ -181,10 +183,7 @@ def write_secret(path: Path, data: bytes | str) -> None:
 
 def write_public(path: Path, data: bytes) -> None:
     """Write `data` to `path` with mode 0644 (a public key: every role reads it, only its writer writes it)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    write_secret(path, data, mode=0o644)
 
 
 @dataclass(frozen=True)
@@ -290,18 +289,17 @@ def ensure_secrets(root: Path, *, tls_hosts: list[str] | tuple[str, ...] = ()) -
     return paths
 
 
-def _read(path: Path) -> str | None:
-    try:
-        return path.read_text().strip() or None
-    except FileNotFoundError:
-        return None
-
-
 def _read_bytes(path: Path) -> bytes | None:
     try:
         return path.read_bytes()
     except FileNotFoundError:
         return None
+
+
+def _read(path: Path) -> str | None:
+    """The file's text, stripped; None if it is missing or empty."""
+    data = _read_bytes(path)
+    return (data.decode().strip() or None) if data is not None else None
 
 
 def read_password(root: Path, user: str) -> str | None:
