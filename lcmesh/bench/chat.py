@@ -276,9 +276,9 @@ def markdown(report: dict[str, Any]) -> str:
              "a second outside author after set b was first scored, and is what the question check and the rules "
              "were tuned on since (set b and the test split were not read). Set `d` (`chat_questions_d.jsonl`, all "
              "test) was written for issue 34 by a third outside author, given only the tool specs and a brief on how "
-             "operators write, before any work on the question reading; nobody who tunes reads it. *Declined*: the reply says the question asks for something the results do "
-             "not give and offers them as what it can give instead; never grounded, never counted right unless "
-             "the question is one to refuse.", "",
+             "operators write, before any work on the question reading; nobody who tunes reads it. *Declined*: "
+             "the reply says the question asks for something the results do not give and offers them as what it "
+             "can give instead; never grounded, never counted right unless the question is one to refuse.", "",
              "| planner | part | questions | tool calls right | answers right | refusals right | wrong but "
              "grounded | declined | rule plans | p50 s | p99 s |", "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for planner, splits in report["planners"].items():

@@ -20,8 +20,8 @@ def bench_chat(
         "llm,rules,oracle",
     site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
     questions: Annotated[str, typer.Option(help="question sets: a (the first, dev and test), b (an outside author's, "
-                                           "test only), c (another outside author's, dev only), d (a third's, test only, issue 34); "
-                                           "comma list")] = "a,b,c,d",
+                                           "test only), c (another outside author's, dev only), d (a third's, "
+                                           "test only, issue 34); comma list")] = "a,b,c,d",
     live: Annotated[int, typer.Option(help="instead: start the demo mesh and ask this many test questions through "
                                       "its REST API; who planned each answer and its latency", min=0)] = 0,
     controller: Annotated[Optional[str], typer.Option(help="--live: the demo's controller (default: the demo's)")] = None,

@@ -16,8 +16,9 @@ document must also pass the check every agent makes before adopting one (``Agent
 is published while the Sensor is down: the current config document it reads when it starts, and every
 agent's latest events (``events/{role}/recent``, the last ``RECENT_EVENTS`` of each) it fetches then
 (an event already in history is not written twice); explanations and alerts need a plant step, so
-none are made while it is down, and a config version superseded while it was down is not recorded. The bus callbacks only queue a row; a thread of the Sensor writes them, so
-a step's transaction or a retention pass never holds up the bus thread that brings proposals.
+none are made while it is down, and a config version superseded while it was down is not recorded.
+The bus callbacks only queue a row; a thread of the Sensor writes them, so a step's transaction or a
+retention pass never holds up the bus thread that brings proposals.
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ class HistoryRecorder:
         the reply's key's, which the router lets only that role answer on."""
         w = self.writer
         try:  # one query per role: the router's ACL lets a role reply on its own key only, not to a wildcard query
-            replies = [r for role in ROLES for r in agent.bus.query(keys.recent_events(agent.site, role), timeout_s=5.0)]
+            replies = [reply for role in ROLES
+                       for reply in agent.bus.query(keys.recent_events(agent.site, role), timeout_s=5.0)]
         except BusError as exc:  # the bus closing under a stop: nothing to fetch, the agent goes on
             log.warning("could not fetch the agents' recent events: %s", exc)
             return

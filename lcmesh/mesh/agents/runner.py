@@ -19,7 +19,7 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_NO_ROUTER = 0, 1, 2, 3
 # at once, each given `stop_timeout_s`, default 5 s), below the 60 s a test or `lcmesh stop` waits
 AGENT_STOP_GRACE_S = 30.0
 # told to stop while it still starts (a model loading, a GGUF merging, the twin spinning up): nothing to hand over
-# yet, so the forced exit comes sooner, within compose's 15 s stop_grace_period and a test's 15 s wait
+# yet, so the forced exit comes sooner
 STARTING_STOP_GRACE_S = 5.0
 GIL_SWITCH_INTERVAL_S = 0.0005  # a bus callback waits at most this for a busy thread to yield (default 5 ms)
 

@@ -66,7 +66,7 @@ def test_a_resumed_host_holds_the_inputs_of_the_checkpointed_step(lcopt_host):
 
 
 class SetOnCheck(threading.Event):
-    """An event that sets itself on its `n`-th look (a stop that arrives in the middle of the spin-up, at a known step)."""
+    """An event that sets itself on its `n`-th look (a stop that arrives mid-spin-up, at a known step)."""
 
     def __init__(self, n: int):
         super().__init__()

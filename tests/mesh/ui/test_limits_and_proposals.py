@@ -222,7 +222,8 @@ def test_a_proposal_time_must_be_iso_text_not_a_number():
 
     from lcmesh.mesh.agents.ui.schemas import ProposalStamp
 
-    assert ProposalStamp.model_validate({"config_version": 1, "made_at": "2026-11-27T10:00:00+00:00"}).made_at.year == 2026
+    good = ProposalStamp.model_validate({"config_version": 1, "made_at": "2026-11-27T10:00:00+00:00"})
+    assert good.made_at.year == 2026
     for bad in (0, 1.5e9, None):
         with pytest.raises(pydantic.ValidationError, match="made_at"):
             ProposalStamp.model_validate({"config_version": 1, "made_at": bad})
