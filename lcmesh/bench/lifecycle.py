@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lcmesh.bench.machine import machine_info
-from lcmesh.mesh.processes import free_port, wait_for_port
+from lcmesh.mesh.processes import free_port, log_tail, wait_for_port
 from lcmesh.mesh.service import mesh_processes, port_listener
 
 LCMESH = str(Path(sys.executable).parent / "lcmesh")
@@ -257,7 +257,7 @@ def kill_after_ui_trial(data_dir: Path, roles: tuple[str, ...] = DEMO_ROLES) -> 
                 break
             time.sleep(0.1)
         left_at_target = left_at_target or []
-        logs = {p.role: _log_tail(run.data_dir / "logs" / f"{p.role}.log") for p in left_at_target}
+        logs = {p.role: log_tail(run.data_dir / "logs" / f"{p.role}.log", 8) for p in left_at_target}
     finally:
         stop_everything(run)
     return {"ui_answered_s": round(ui_s, 2), "processes_at_kill": len(before),
@@ -265,13 +265,6 @@ def kill_after_ui_trial(data_dir: Path, roles: tuple[str, ...] = DEMO_ROLES) -> 
             "left_after_10_s": [f"{p.role} pid {p.pid}" for p in left_at_target],
             "left_after_60_s": [] if gone_s is not None else [f"{p.role} pid {p.pid}" for p in left],
             "their_last_log_lines": logs}  # fmt: skip
-
-
-def _log_tail(path: Path, n: int = 8) -> str:
-    try:
-        return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
-    except OSError:
-        return ""
 
 
 def run_kill_after_ui(trials: int, load: int = 0, say: Callable[[str], None] = print, root: Path | None = None,

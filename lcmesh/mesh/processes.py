@@ -107,11 +107,16 @@ class Child:
                 pass
 
     def log_tail(self, n_lines: int = 20) -> str:
-        try:
-            lines = self.log_path.read_text(errors="replace").splitlines()
-        except OSError:
-            return ""
-        return "\n".join(lines[-n_lines:])
+        return log_tail(self.log_path, n_lines)
+
+
+def log_tail(path: Path, n_lines: int = 20) -> str:
+    """The last `n_lines` of a log file ("" if it can not be read)."""
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return ""
+    return "\n".join(lines[-n_lines:])
 
 
 def stop_children(children: list[Child], timeout_s: float) -> None:
