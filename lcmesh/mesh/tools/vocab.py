@@ -649,3 +649,57 @@ MISSING_WORDS: dict[str, dict[str, str]] = {
     "history": {"en": "a time window", "es": "un periodo de tiempo", "de": "einen Zeitraum", "fr": "une période"},
     "weather": {"en": "the weather", "es": "el clima", "de": "das Wetter", "fr": "la météo"},
 }  # fmt: skip
+
+
+# --- which of the four languages a text is in (explain-eval reports a text in none of them as "not read") -----------
+COMMON_WORDS = {
+    "en": frozenset("the a an of and to in is was were for on at it its with by from as that this are be has have "
+                    "not so than".split()),
+    "es": frozenset("el la los las de del y en es fue para por con se que un una al lo su sus está están más ha "
+                    "pero".split()),
+    "de": frozenset("der die das den dem des und ist war für mit von zu im auf bei ein eine einen nicht wurde "
+                    "wird sind auch".split()),
+    "fr": frozenset("le la les de des du et est était pour par avec sur un une au aux que qui dans ce sont a été "
+                    "plus".split()),
+}  # fmt: skip
+_WORD = re.compile(r"[^\W\d_]+", re.UNICODE)
+_LATIN = re.compile(r"[A-Za-zÀ-ÖØ-öø-ÿ]")
+
+
+def language_of(text: str) -> str | None:
+    """'en', 'es', 'de' or 'fr' by the share of each language's commonest words; None when a text of a dozen words or
+    more has almost none of them (under 5 %), or when most of its letters are not Latin: it is in another language.
+    A short or structured text (a log line, key=value fields) is read as English shorthand."""
+    words = [w.lower() for w in _WORD.findall(text)]
+    letters = sum(len(w) for w in words)
+    if letters and sum(len(_LATIN.findall(w)) for w in words) < 0.5 * letters:
+        return None
+    counts = {lang: sum(w in common for w in words) for lang, common in COMMON_WORDS.items()}
+    best = max(LANGUAGES, key=lambda lang: (counts[lang], lang == "en"))
+    known = sum(w in _DOMAIN_WORDS or any(w in common for common in COMMON_WORDS.values()) for w in words)
+    if len(words) >= 12 and known < 0.1 * len(words):
+        return None
+    return best
+
+
+def _domain_words() -> frozenset[str]:
+    """The plant's words in the four languages (entities, quantities, directions, superlatives, valves), as tokens, and
+    the shorthand of logs and tables."""
+    out: set[str] = set("sp dp lw lwt wb cdu temp setpoint valve valves branch tower kw psi degc supply flow".split())
+
+    def walk(x) -> None:
+        if isinstance(x, str):
+            out.update(t for t in re.findall(r"[^\W\d_]{3,}", x.lower()))
+        elif isinstance(x, dict):
+            for k, v in x.items():
+                walk(k)
+                walk(v)
+        elif isinstance(x, (list, tuple, set, frozenset)):
+            for v in x:
+                walk(v)
+
+    walk([ENTITY_WORDS, BRANCH_WORDS, QUANTITY_WORDS, DIRECTION_WORDS, SUPERLATIVES, VALVE_WORDS])
+    return frozenset(out)
+
+
+_DOMAIN_WORDS = _domain_words()

@@ -43,7 +43,7 @@ def test_scores_reflect_the_flaws():
     assert BY_ID["good-03-zero-based"]["index_base"] == 0 and BY_ID["good-01-prose"]["index_base"] == 1
     assert BY_ID["good-07-derived"]["numbers"]["derived"] >= 2
     agg = RESULT["aggregate"]
-    assert agg["n_invalid"] == 3 and agg["n_valid"] == len(EXPECTED) - 3
+    assert agg["n_invalid"] == 3 and agg["n_not_read"] == 1 and agg["n_valid"] == len(EXPECTED) - 4
     assert 0.0 < agg["coverage"] < 1.0
 
 

@@ -2,207 +2,21 @@
 
 Input: JSON lines ``{"id", "observation", "action", "explanation", "facts"?, "previous_action"?,
 "level"?, "index_base"?}`` (DESIGN.md, CLI). Output: ``{"items": [{"id", "numeric_grounding",
-"coverage", "direction_consistency", "flags": [{"kind", "detail"}], ...}], "aggregate": {...}}``.
+"coverage", "direction_consistency", "flags": [{"kind", "detail"}], "claims": [...], ...}], "aggregate": {...}}``.
 
-Flag kinds: ``ungrounded_number``, ``missing_action_dimension``, ``wrong_direction``, ``wrong_ranking``,
-``out_of_bounds``, ``physics``, ``missing_section`` (when the record names its ``level``) and
-``invalid_record`` (a line that is not a valid record: it is reported with its line number, scored 0
-and left out of the aggregate scores; the run goes on).
+Flag kinds (``lcmesh.mesh.tools.claims.FLAG_KINDS``, shared with the chat's guard and the LLM explainer):
+``ungrounded_number``, ``missing_action_dimension``, ``wrong_direction``, ``wrong_ranking``, ``out_of_bounds``,
+``physics``, ``missing_section`` (when the record names its ``level``), ``invalid_record`` (a line that is not a
+valid record: reported with its line number, scored 0 and left out of the aggregate; the run goes on) and
+``not_read`` (a text in a language no reader covers: reported, left out of the aggregate, never passed or flagged).
 
-The rules are in docs/explanations.md; ``numbers.py`` reads numbers, ``record.py`` builds the value
-pool, ``grounding.py``, ``claims.py`` and ``consistency.py`` check, ``report.py`` aggregates.
+The judge is ``judge.py``; the rules are in docs/explanations.md.
 """
 
-from __future__ import annotations
-
-import json
-import re
-from collections.abc import Iterable
-from pathlib import Path
-from typing import Any
-
-from pydantic import ValidationError
-
-from lcmesh.mesh.tools import vocab
-from lcmesh.mesh.tools.explain_eval import text as tx
-from lcmesh.mesh.tools.explain_eval.claims import Context, check_coverage, check_direction, rounded_shares
-from lcmesh.mesh.tools.explain_eval.consistency import check_bounds, check_physics, check_ranking
-from lcmesh.mesh.tools.explain_eval.grounding import _TOPIC_NAMES, ValuePool, check_grounding
-from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
-from lcmesh.mesh.tools.explain_eval.record import EvalConfig, RawRecord, build_record, validation_message
-from lcmesh.mesh.tools.explain_eval.report import aggregate, render_markdown
-
-FLAG_KINDS = ("ungrounded_number", "missing_action_dimension", "wrong_direction", "wrong_ranking", "out_of_bounds",
-              "physics", "missing_section", "invalid_record")  # fmt: skip
-
-LEVEL_SECTIONS: dict[str, tuple[str, ...]] = {
-    "short": ("EXPLANATION", "TEMPERATURE IMPACT", "ENERGY EFFICIENCY IMPACT"),
-    "detailed": ("EXECUTIVE SUMMARY", "TEMPERATURE STABILITY", "ACTION RATIONALE", "ENERGY EFFICIENCY",
-                 "RECOMMENDATIONS"),
-    "very_detailed": ("EXECUTIVE SUMMARY", "SYSTEM STATE ANALYSIS", "CABINET CONTROL ANALYSIS",
-                      "COOLING TOWER ANALYSIS", "ENERGY EFFICIENCY ANALYSIS", "THERMODYNAMIC IMPLICATIONS",
-                      "RECOMMENDATIONS", "SCIENTIFIC INSIGHTS"),
-}  # fmt: skip
-"""Top-level headings each explanation level must have (LC-Opt Appendix U)."""
-
-
-def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None = None) -> dict:
-    """Score one decoded record; an invalid one becomes an item with an ``invalid_record`` flag."""
-    cfg = cfg or EvalConfig()
-    where = f"line {line}: " if line is not None else ""
-    fallback_id = f"line-{line}" if line is not None else "record"
-    if not isinstance(data, dict):
-        return _invalid(fallback_id, f"{where}a record must be a JSON object, got {type(data).__name__}")
-    try:
-        raw = RawRecord.model_validate(data)
-    except ValidationError as exc:
-        return _invalid(str(data.get("id", fallback_id)), f"{where}{validation_message(exc)}")
-    rec = build_record(raw)
-    rec.text = tx.normalize(rec.text)
-    pool = ValuePool(rec.pool)
-    mentions = tx.branch_mentions(rec.text)
-    ctx = Context(rec, cfg, tx.sentences(rec.text), extract_numbers(rec.text), mentions,
-                  tx.decide_index_base(mentions, rec.n_branches, rec.index_base), pool)  # fmt: skip
-    grounding = check_grounding(rec, ctx.numbers, pool, lambda pos: _clause_text(ctx, pos),
-                                lambda pos: _branch_at(ctx, pos), cfg, ctx.base,
-                                frozenset(m.start for m in rounded_shares(ctx)))  # fmt: skip
-    flags = [("ungrounded_number", p) for p in grounding.problems]
-    dims, coverage_flags = check_coverage(ctx)
-    checked, consistent, direction_flags = check_direction(ctx)
-    flags += coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx)
-    if rec.level is not None:
-        found = {s.section for s in ctx.sentences} | _headings(rec.text)
-        flags += [("missing_section", f"the {rec.level} level needs a '{h}' section")
-                  for h in LEVEL_SECTIONS[rec.level] if h not in found]  # fmt: skip
-    return {
-        "id": rec.id,
-        "numeric_grounding": grounding.score,
-        "coverage": sum(dims.values()) / len(dims) if dims else 1.0,
-        "direction_consistency": consistent / checked if checked else 1.0,
-        "flags": [{"kind": k, "detail": d} for k, d in _dedupe(flags)],
-        "numbers": {"checked": grounding.checked, "grounded": grounding.grounded, "derived": grounding.derived,
-                    "skipped": grounding.skipped},
-        "dimensions": dims,
-        "directions": {"checked": checked, "consistent": consistent},
-        "index_base": ctx.base,
-    }  # fmt: skip
-
-
-def evaluate_lines(lines: Iterable[str], cfg: EvalConfig | None = None) -> dict:
-    """Score JSON lines (blank lines skipped); never raises on bad input."""
-    cfg = cfg or EvalConfig()
-    items = []
-    for n, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        try:
-            data = json.loads(line)
-        except json.JSONDecodeError as exc:
-            items.append(_invalid(f"line-{n}", f"line {n}: not valid JSON ({exc.msg} at column {exc.colno})"))
-            continue
-        try:
-            items.append(evaluate_record(data, cfg, line=n))
-        except Exception as exc:  # noqa: BLE001 - one odd record must not stop the run; it is reported
-            items.append(_invalid(str(data.get("id", f"line-{n}")) if isinstance(data, dict) else f"line-{n}",
-                                  f"line {n}: could not be scored ({type(exc).__name__}: {exc})"))  # fmt: skip
-    return {"items": items, "aggregate": aggregate(items)}
-
-
-def evaluate_file(path: str | Path, cfg: EvalConfig | None = None) -> dict:
-    """Score a JSONL file."""
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        return evaluate_lines(fh, cfg)
-
-
-def _invalid(record_id: str, detail: str) -> dict:
-    return {"id": record_id, "numeric_grounding": 0.0, "coverage": 0.0, "direction_consistency": 0.0,
-            "flags": [{"kind": "invalid_record", "detail": detail}]}  # fmt: skip
-
-
-def _headings(text: str) -> set[str]:
-    found = set()
-    for line in text.splitlines():
-        head = tx.heading_of(line) if line.strip() else None
-        if head is not None:
-            found.add(head[1].upper())
-    return found
-
-
-def _clause_text(ctx: Context, pos: int) -> str:
-    for s in ctx.sentences:
-        if s.start <= pos < s.end:
-            return next((c.text for c in s.clauses if c.start <= pos < c.end), s.text)
-    return ""
-
-
-# "0.20 for branch 1", "0.20 (branch 1", "0.20 para la rama 1": the number is said of the branch after it
-_FOR_BRANCH = re.compile(r"^\s*(?:\S+\s+)?(?:\(\s*|(?:to|on|a|an)\s+" + vocab.ARTICLE + "?|"
-                         + vocab.OF_BEFORE_ENTITY.pattern + ")$", re.IGNORECASE)  # fmt: skip
-
-
-def _branch_at(ctx: Context, pos: int) -> int | None:
-    """The branch a number at ``pos`` is said of: "0.20 for branch 1", else "branch 1 ... at 0.20" nearby."""
-    for s in ctx.sentences:
-        if s.start <= pos < s.end:
-            end = next((m.unit_end if m.unit_end > 0 else m.end for m in ctx.numbers if m.start == pos), pos)
-            in_list = ctx.rec.text[max(0, pos - 1) : pos] == "/"  # "0.36/0.32/0.32 (branch 1 opened ...)"
-            after = [b for b in ctx.branches_in(end, s.end) if _FOR_BRANCH.match(ctx.rec.text[end : b.start])
-                     and not (in_list and "(" in ctx.rec.text[end : b.start])]  # fmt: skip
-            if after and (after[0].group < 0 or sum(x.group == after[0].group for x in ctx.branches) == 1):
-                return ctx.entity(after[0])
-            this = next((m for m in ctx.numbers if m.start == pos), None)
-            if this is not None and _opens_list(ctx, this):
-                return None  # "the loads are 3.0 kW, 84.7 kW, 15.3 kW": a list of values, one per branch
-            for b in ctx.branches_in(s.start, s.end):
-                a, z = ctx.span_of(b, s)
-                group = [x for x in ctx.branches if b.group >= 0 and x.group == b.group]
-                near = tx.words_between(ctx.rec.text, b.end, pos) <= 12
-                # only the first number of its kind after the mention: "branch 3 gets 0.30, like its 28 %" is
-                # about branch 3, "branches 1 and 3 ... their 15 % and 28 %" lists are not attributed
-                first = this is None or not any(_kind(m) == _kind(this) for m in ctx.numbers_in(b.end, pos))
-                apart = _ATTRIBUTION_BREAK.search(ctx.rec.text, b.end, pos) if b.end <= pos else None
-                text = ctx.rec.text
-                if text.rfind("(", s.start, b.start) > text.rfind(")", s.start, b.start) and ")" in text[b.end : pos]:
-                    apart = True  # "36 % (branch 1, opened), 32 %": the mention sits in brackets closed before
-                if a <= pos < z and len(group) <= 1 and b.start <= pos and near and first and apart is None:
-                    return ctx.entity(b)
-    return None
-
-
-# a number is not said of a branch named before a clause break or before another quantity's name
-_ATTRIBUTION_BREAK = re.compile(r";|\||\b(?:while|whereas|but)\b|" + _TOPIC_NAMES.pattern.split("|(?P<other>")[0],
-                                re.IGNORECASE)  # fmt: skip
-
-
-_LIST_GAP = re.compile(r"\s*(?:,|,?\s*and|/|;)?\s*")
-
-
-def _opens_list(ctx: Context, m) -> bool:
-    """True when the next number is of the same kind and joined to ``m`` only by a comma, "and" or a slash."""
-    later = [x for x in ctx.numbers if x.start > m.start]
-    if not later or _kind(later[0]) != _kind(m):
-        return False
-    end = m.unit_end if m.unit_end > 0 else m.end
-    return bool(_LIST_GAP.fullmatch(ctx.rec.text, end, later[0].start))
-
-
-def _kind(m) -> str:
-    """A number's kind for attribution: temperature, power, or fraction (bare decimals and percentages)."""
-    if m.unit in ("degC", "degF", "K"):
-        return "temp"
-    if m.unit in ("W", "kW", "MW"):
-        return "power"
-    return "fraction" if m.unit in ("", "%", "pp") else m.unit
-
-
-def _dedupe(flags: list[tuple[str, str]]) -> list[tuple[str, str]]:
-    seen, out = set(), []
-    for f in flags:
-        if f not in seen:
-            seen.add(f)
-            out.append(f)
-    return out
-
+from lcmesh.mesh.tools.claims import FLAG_KINDS
+from lcmesh.mesh.tools.explain_eval.judge import LEVEL_SECTIONS, evaluate_file, evaluate_lines, evaluate_record
+from lcmesh.mesh.tools.explain_eval.record import EvalConfig
+from lcmesh.mesh.tools.explain_eval.report import render_markdown
 
 __all__ = ["EvalConfig", "FLAG_KINDS", "LEVEL_SECTIONS", "evaluate_file", "evaluate_lines", "evaluate_record",
            "render_markdown"]  # fmt: skip

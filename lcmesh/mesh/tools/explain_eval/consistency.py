@@ -18,7 +18,8 @@ import re
 import numpy as np
 
 from lcmesh.mesh.tools.explain_eval import text as tx
-from lcmesh.mesh.tools.explain_eval.claims import Context, Flag, direction_claims
+from lcmesh.mesh.tools.claims import Flag
+from lcmesh.mesh.tools.explain_eval.actions import Context, direction_claims
 from lcmesh.mesh.tools.explain_eval.grounding import _CLAUSE_END, DIFF_CUE, _topic_of
 from lcmesh.mesh.tools.explain_eval.numbers import K0, PSI_TO_PA
 
@@ -42,11 +43,15 @@ def check_ranking(ctx: Context) -> list[Flag]:
                 j = ctx.entity(b)
                 best = int(values.argmax() if extreme == "max" else values.argmin())
                 if what == "valve" and values.size > 1 and float(np.ptp(values)) < 1e-9:
-                    flags.append(("wrong_ranking", f"'{s.text.strip()}': the valves are split equally, no branch has "
+                    flags.append(ctx.fail("rank", "wrong_ranking", f"'{s.text.strip()}': the valves are split equally, no branch has "
                                                    f"the {_RANK_NAMES[what, extreme].removeprefix('branch with the ')}"))
                 elif abs(values[j] - values[best]) > _rank_tol(ctx, what, values):
-                    flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(j)} is not the "
-                                                   f"{_RANK_NAMES[what, extreme]} ({ctx.label(best)} is)"))  # fmt: skip
+                    flags.append(ctx.fail("rank", "wrong_ranking", f"'{s.text.strip()}': {ctx.label(j)} is not the "
+                                          f"{_RANK_NAMES[what, extreme]} ({ctx.label(best)} is)", s.text.strip(),
+                                          entity=ctx.label(j), quantity=what))  # fmt: skip
+                else:
+                    ctx.claim("rank", s.text.strip(), entity=ctx.label(j), quantity=what).holds(
+                        f"{ctx.label(j)} is the {_RANK_NAMES[what, extreme]}")
         flags += _comparatives(ctx, s, mentions, data)
     return flags
 
@@ -111,9 +116,12 @@ def _comparatives(ctx: Context, s: tx.Sentence, mentions, data) -> list[Flag]:
             if not (0 <= a < values.size and 0 <= b < values.size):
                 continue
             diff = values[a] - values[b] if op == "gt" else values[b] - values[a]
+            claim = ctx.claim("rank", s.text.strip(), entity=ctx.label(a), quantity=what)
             if diff < -_rank_tol(ctx, what, values):
-                flags.append(("wrong_ranking", f"'{s.text.strip()}': {ctx.label(a)} is not {w.group().lower()} than "
-                                               f"{ctx.label(b)}"))  # fmt: skip
+                flags.append(claim.fails("wrong_ranking", f"'{s.text.strip()}': {ctx.label(a)} is not "
+                                         f"{w.group().lower()} than {ctx.label(b)}"))  # fmt: skip
+            else:
+                claim.holds(f"{ctx.label(a)} is {w.group().lower()} than {ctx.label(b)}")
     return flags
 
 
@@ -147,7 +155,7 @@ def check_physics(ctx: Context) -> list[Flag]:
     for s in ctx.sentences:
         t = s.text
         if tx.BELOW_WET_BULB.search(t) and not tx.NEGATION.search(t):
-            flags.append(("physics", f"'{t.strip()}': a wet tower cannot cool water below the wet bulb"))
+            flags.append(ctx.fail("cause", "physics", f"'{t.strip()}': a wet tower cannot cool water below the wet bulb"))
         effects = []  # (target, up|down, effect start, target start, target end)
         for target, pattern in tx.TARGETS.items():
             for m in pattern.finditer(t):
@@ -164,10 +172,12 @@ def check_physics(ctx: Context) -> list[Flag]:
                 continue
             dim, cpol = before[-1][:2]
             want = _EXPECT.get((dim, cpol), {}).get(target)
+            what = target if target != "temp" else "blade temperature"
             if want is not None and want != pol:
-                what = target if target != "temp" else "blade temperature"
-                flags.append(("physics", f"'{t.strip()}': {_cause_text(dim, cpol)} should make the {what} go {want}, "
-                                         f"not {pol}"))  # fmt: skip
+                flags.append(ctx.fail("cause", "physics", f"'{t.strip()}': {_cause_text(dim, cpol)} should make the "
+                                      f"{what} go {want}, not {pol}", t.strip(), quantity=what))  # fmt: skip
+            elif want is not None:
+                ctx.claim("cause", t.strip(), quantity=what).holds(f"{_cause_text(dim, cpol)} makes the {what} go {want}")
     return flags
 
 
@@ -230,9 +240,9 @@ def check_bounds(ctx: Context) -> list[Flag]:
     if rec.valves is not None:
         bad = [f"{v:.3f}" for v in rec.valves if v < -1e-9 or v > 1 + 1e-9]
         if bad:
-            flags.append(("out_of_bounds", f"valve fractions {', '.join(bad)} lie outside [0, 1]"))
+            flags.append(ctx.fail("bound", "out_of_bounds", f"valve fractions {', '.join(bad)} lie outside [0, 1]"))
         if abs(rec.valves.sum() - 1.0) > b.valve_sum_tol:
-            flags.append(("out_of_bounds", f"valve fractions sum to {rec.valves.sum():.3f}, not 1"))
+            flags.append(ctx.fail("bound", "out_of_bounds", f"valve fractions sum to {rec.valves.sum():.3f}, not 1"))
     for name, value, (lo, hi), unit in (
         ("supply setpoint", None if rec.supply_k is None else rec.supply_k - K0, b.supply_setpoint_c, "°C"),
         ("dp setpoint", None if rec.dp_pa is None else rec.dp_pa / PSI_TO_PA, b.dp_psi, "psi"),
@@ -240,16 +250,16 @@ def check_bounds(ctx: Context) -> list[Flag]:
         ("leaving-water setpoint", None if rec.lw_k is None else rec.lw_k - K0, b.lw_setpoint_c, "°C"),
     ):
         if value is not None and not lo <= value <= hi and not (name == "flow" and value == lo == 0):
-            flags.append(("out_of_bounds", f"{name} {value:.2f} {unit} lies outside [{lo:g}, {hi:g}] {unit}"))
+            flags.append(ctx.fail("bound", "out_of_bounds", f"{name} {value:.2f} {unit} lies outside [{lo:g}, {hi:g}] {unit}"))
     if rec.flow_kg_s is not None and rec.flow_kg_s <= 0:
-        flags.append(("out_of_bounds", f"flow {rec.flow_kg_s:.2f} kg/s must be > 0"))
+        flags.append(ctx.fail("bound", "out_of_bounds", f"flow {rec.flow_kg_s:.2f} kg/s must be > 0"))
     if rec.lw_k is not None and rec.wet_bulb_k is not None and rec.lw_k < rec.wet_bulb_k:
-        flags.append(("out_of_bounds", f"leaving-water setpoint {rec.lw_k - K0:.1f} °C is below the "
+        flags.append(ctx.fail("bound", "out_of_bounds", f"leaving-water setpoint {rec.lw_k - K0:.1f} °C is below the "
                                        f"{rec.wet_bulb_k - K0:.1f} °C wet bulb"))  # fmt: skip
     n = rec.n_branches
     for bm in ctx.branches:
         if n and not 0 <= ctx.entity(bm) < n:
-            flags.append(("out_of_bounds", f"branch {bm.raw} does not exist ({n} branches, numbered from {ctx.base})"))
+            flags.append(ctx.fail("bound", "out_of_bounds", f"branch {bm.raw} does not exist ({n} branches, numbered from {ctx.base})"))
     for s in ctx.sentences:
         for c in s.clauses:
             if not re.search(r"\bvalves?\b|\bfractions?\b|\bopening\b", c.text, re.I):
@@ -259,7 +269,7 @@ def check_bounds(ctx: Context) -> list[Flag]:
                     continue
                 over = (m.unit == "" and m.decimals > 0 and m.value > 1.0) or (m.unit == "%" and m.value > 100)
                 if over or (m.unit in ("", "%") and m.value < 0):
-                    flags.append(("out_of_bounds", f"'{m.text}{'%' if m.unit == '%' else ''}' in '{c.text.strip()}'"
+                    flags.append(ctx.fail("bound", "out_of_bounds", f"'{m.text}{'%' if m.unit == '%' else ''}' in '{c.text.strip()}'"
                                                    " is not a valid valve fraction"))  # fmt: skip
     return flags + _stated_setpoints(ctx) + _stated_valves(ctx) + _stated_branch_count(ctx)
 
@@ -280,21 +290,23 @@ def _stated_setpoints(ctx: Context) -> list[Flag]:
             ulp = m.half_ulp * (5 / 9 if m.unit == "degF" else 1.0) + 1e-6  # "64.4 °F" is the 18 °C edge, as written
             topic = _topic_of(ctx.rec.text, m)
             if topic == "supply_setpoint" and not b.supply_setpoint_c[0] - ulp <= c <= b.supply_setpoint_c[1] + ulp:
-                flags.append(("out_of_bounds", f"'{quote}' is given as the supply setpoint, outside "
+                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the supply setpoint, outside "
                                                f"[{b.supply_setpoint_c[0]:g}, {b.supply_setpoint_c[1]:g}] °C"))
             elif topic == "lw_setpoint" and not b.lw_setpoint_c[0] - ulp <= c <= b.lw_setpoint_c[1] + ulp:
-                flags.append(("out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, outside "
+                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, outside "
                                                f"[{b.lw_setpoint_c[0]:g}, {b.lw_setpoint_c[1]:g}] °C"))
             elif topic == "lw_setpoint" and wet_bulb_c is not None and c < wet_bulb_c - ulp:
-                flags.append(("out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, below the "
+                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, below the "
                                                f"{wet_bulb_c:.1f} °C wet bulb"))  # fmt: skip
+            elif topic in ("supply_setpoint", "lw_setpoint"):
+                ctx.claim("bound", quote, quantity=topic, value=c, unit="degC").holds("the plant's limits")
         elif any(q == "pressure" for q, _, _ in m.interpretations) and m.unit:
             psi = next(x for q, x, _ in m.interpretations if q == "pressure") / PSI_TO_PA
             names = list(tx.DP.finditer(_clause_before(ctx, m.start)))
             between = _clause_before(ctx, m.start)[names[-1].end() :] if names else ""
             ulp = m.half_ulp * psi / m.value + 1e-6 if m.value else 1e-6
             if names and not DIFF_CUE.search(between) and not b.dp_psi[0] - ulp <= psi <= b.dp_psi[1] + ulp:
-                flags.append(("out_of_bounds", f"'{quote}' is given as the dp setpoint, outside "
+                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the dp setpoint, outside "
                                                f"[{b.dp_psi[0]:g}, {b.dp_psi[1]:g}] psi"))  # fmt: skip
     return flags
 
@@ -346,7 +358,7 @@ def _stated_valves(ctx: Context) -> list[Flag]:
             if len(run) == n and not ctx.branches_in(c.start, c.end) and all(
                     _FRACTION_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
                 if sum(m.value for m in run) > 1.0 + tol:  # one list, one split
-                    return [("out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' sum to "
+                    return [ctx.fail("bound", "out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' sum to "
                                               "more than 1")]
         for bm in ctx.branches_in(s.start, s.end):
             j = ctx.entity(bm)
@@ -362,7 +374,7 @@ def _stated_valves(ctx: Context) -> list[Flag]:
     if smallest <= 1.0 + tol:
         return []
     shown = ", ".join("/".join(f"{v:g}" for v in sorted(given[j])) for j in range(n))
-    return [("out_of_bounds", f"the valve fractions the text gives ({shown}) sum to more than 1")]
+    return [ctx.fail("bound", "out_of_bounds", f"the valve fractions the text gives ({shown}) sum to more than 1")]
 
 
 _COUNT_WORDS = {"two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8}
@@ -377,5 +389,5 @@ def _stated_branch_count(ctx: Context) -> list[Flag]:
         k = m.group("n").lower()
         count = int(k) if k.isdigit() else _COUNT_WORDS[k]
         if count > n and not re.search(r"\bof\s*$", ctx.rec.text[max(0, m.start() - 6) : m.start()]):
-            flags.append(("out_of_bounds", f"'{m.group()}': the cabinet has {n} branches"))
+            flags.append(ctx.fail("bound", "out_of_bounds", f"'{m.group()}': the cabinet has {n} branches"))
     return flags

@@ -20,7 +20,8 @@ import numpy as np
 
 from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.explain_eval.numbers import K0, NumberMention
-from lcmesh.mesh.tools.explain_eval.record import EvalConfig, PoolEntry, Record
+from lcmesh.mesh.tools.claims import Claim, Fact
+from lcmesh.mesh.tools.explain_eval.record import EvalConfig, Record
 
 DIFF_CUE = re.compile(
     r"\b(?:above|below|than|warmer|hotter|cooler|colder|higher|lower|more|less|difference|differ\w*|spread|spans?"
@@ -40,6 +41,7 @@ class GroundingResult:
     derived: int = 0
     skipped: int = 0
     problems: list[str] = field(default_factory=list)
+    claims: list[Claim] = field(default_factory=list)  # one per measurement, with its verdict
 
     @property
     def score(self) -> float:
@@ -49,14 +51,14 @@ class GroundingResult:
 class ValuePool:
     """Pool values per quantity as arrays, with lazily built pairwise differences and sums."""
 
-    def __init__(self, entries: list[PoolEntry]):
-        self.entries: dict[str, list[PoolEntry]] = {}
+    def __init__(self, entries: list[Fact]):
+        self.entries: dict[str, list[Fact]] = {}
         for e in entries:
             self.entries.setdefault(e.quantity, []).append(e)
         self.values = {q: np.array([e.value for e in es]) for q, es in self.entries.items()}
         self._pairs: dict[tuple[str, str], np.ndarray] = {}
 
-    def direct(self, quantity: str, value: float, tol: float) -> list[PoolEntry]:
+    def direct(self, quantity: str, value: float, tol: float) -> list[Fact]:
         arr = self.values.get(quantity)
         if arr is None:
             return []
@@ -106,33 +108,45 @@ def check_grounding(
             res.skipped += 1
             continue
         res.checked += 1
+        claim = Claim("equals", _quote(rec.text, m).strip("'"), m.start, m.end, value=m.value, unit=m.unit,
+                      readings=tuple(m.interpretations))  # fmt: skip
+        res.claims.append(claim)
         if m.start in rounded_shares:
             res.grounded += 1
+            claim.holds("the valve split, rounded to sum to 100 %")
             continue
-        hits: list[PoolEntry] = []
+        hits: list[Fact] = []
         fraction_only = _named_valve_fraction(rec.text, m)
         for q, x, h in m.interpretations:
             if not fraction_only or q == "fraction":
                 hits += pool.direct(q, x, tolerance(q, x, h, cfg))
         if hits:
             branch = branch_at(m.start)
+            claim.entity = None if branch is None else f"branch {branch + base}"
             wrong = _misattributed(hits, branch, pool)
             topic = _topic_of(rec.text, m)
             if wrong is not None:
                 actual = f"branch {wrong[1] + base}'s value" if wrong[1] is not None else f"the {_labels(hits)}"
-                res.problems.append(f"{_quote(rec.text, m)} is given for branch {wrong[0] + base} but is {actual}")
+                res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given for branch "
+                                                f"{wrong[0] + base} but is {actual}", _labels(hits)).detail)  # fmt: skip
             elif branch is None and topic is not None and _off_topic(hits, topic, pool):
-                res.problems.append(f"{_quote(rec.text, m)} is given as the {topic.replace('_', ' ')} but is the "
-                                    f"{_labels(hits)}")  # fmt: skip
+                claim.quantity = topic
+                res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given as the "
+                                                f"{topic.replace('_', ' ')} but is the {_labels(hits)}",
+                                                _labels(hits)).detail)  # fmt: skip
             else:
                 res.grounded += 1
+                claim.quantity = hits[0].quantity
+                claim.holds(_labels(hits))
             continue
         clause = clause_at(m.start)
         if _derived(m, pool, clause, cfg):
             res.grounded += 1
             res.derived += 1
+            claim.holds("a difference or sum of the record's values")
             continue
-        res.problems.append(f"{_quote(rec.text, m)} matches no observation, action or fact value{_hint(m, pool, cfg)}")
+        res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} matches no observation, action "
+                                        f"or fact value{_hint(m, pool, cfg)}").detail)  # fmt: skip
     return res
 
 
@@ -154,7 +168,7 @@ def _named_valve_fraction(text: str, m: NumberMention) -> bool:
     return not vocab.QUANTITY.search(between) and len(re.findall(r"[\w°%./-]+", between)) <= 8
 
 
-def _misattributed(hits: list[PoolEntry], branch: int | None, pool: "ValuePool") -> tuple[int, int | None] | None:
+def _misattributed(hits: list[Fact], branch: int | None, pool: "ValuePool") -> tuple[int, int | None] | None:
     """(claimed, actual or None) 0-based branches when a number said of a branch is not that branch's value: another
     branch's, or a temperature of no branch (a setpoint, a band limit) where the branch's own is known."""
     if branch is None:
@@ -162,12 +176,12 @@ def _misattributed(hits: list[PoolEntry], branch: int | None, pool: "ValuePool")
     relevant = [e for e in hits if e.quantity in _BRANCH_QUANTITIES]
     if not relevant:
         return None
-    owners = {e.entity if e.entity is not None else e.alias for e in relevant}
+    owners = {e.branch if e.branch is not None else e.alias for e in relevant}
     if branch in owners:
         return None
-    if None in owners and any(e.quantity != "temp_abs" for e in relevant if e.entity is None and e.alias is None):
+    if None in owners and any(e.quantity != "temp_abs" for e in relevant if e.branch is None and e.alias is None):
         return None  # a power or fraction of no branch ("57 % of the cabinet's 346 kW on branch 2"): a total
-    known = any(e.entity == branch for q in {e.quantity for e in relevant} for e in pool.entries.get(q, []))
+    known = any(e.branch == branch for q in {e.quantity for e in relevant} for e in pool.entries.get(q, []))
     if not known:
         return None
     others = sorted(o for o in owners if o is not None)
@@ -214,7 +228,7 @@ def _topic_of(text: str, m: NumberMention) -> str | None:
     return last.lastgroup if last.lastgroup != "other" else None
 
 
-def _off_topic(hits: list[PoolEntry], topic: str, pool: "ValuePool") -> bool:
+def _off_topic(hits: list[Fact], topic: str, pool: "ValuePool") -> bool:
     """True when an absolute temperature named as ``topic`` matches only other readings' values."""
     absolute = [e for e in hits if e.quantity == "temp_abs"]
     if not absolute or any(e.topic == topic for e in absolute):
@@ -222,8 +236,8 @@ def _off_topic(hits: list[PoolEntry], topic: str, pool: "ValuePool") -> bool:
     return any(e.topic == topic for e in pool.entries.get("temp_abs", []))
 
 
-def _labels(hits: list[PoolEntry]) -> str:
-    return " / ".join(dict.fromkeys(e.label for e in hits[:3]))
+def _labels(hits: list[Fact]) -> str:
+    return " / ".join(dict.fromkeys(e.name for e in hits[:3]))
 
 
 def _derived(m: NumberMention, pool: ValuePool, clause: str, cfg: EvalConfig) -> bool:

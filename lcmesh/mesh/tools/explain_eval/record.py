@@ -17,6 +17,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from lcmesh.mesh.tools.claims import Fact
 from lcmesh.mesh.tools.facts import COP_REFERENCE, STABILITY_FULL_MARGIN_K
 
 K0 = 273.15
@@ -79,14 +80,9 @@ def validation_message(exc: ValidationError) -> str:
     return "; ".join(parts)
 
 
-@dataclass
-class PoolEntry:
-    quantity: str
-    value: float
-    label: str
-    entity: int | None = None  # 0-based branch the value belongs to
-    alias: int | None = None  # a branch whose value this entry repeats (e.g. the hottest branch's temperature)
-    topic: str | None = None  # the setpoint or reading a text may name it by (TOPICS)
+def pool_fact(quantity: str, value: float, name: str, branch: int | None = None) -> Fact:
+    """A value of the record's pool: ``branch`` is the 0-based position of the branch it belongs to."""
+    return Fact(name, value, quantity, entity=None if branch is None else f"branch {branch + 1}", branch=branch)
 
 
 @dataclass
@@ -109,7 +105,7 @@ class Record:
     changes: dict[str, float] = field(default_factory=dict)  # dimension -> action minus previous
     valve_changes: np.ndarray | None = None
     observed: dict[str, float] = field(default_factory=dict)  # measured flow/dp/supply for direction refs
-    pool: list[PoolEntry] = field(default_factory=list)
+    pool: list[Fact] = field(default_factory=list)
 
     @property
     def n_branches(self) -> int:
@@ -278,36 +274,36 @@ CONSTANTS = [
 _BRANCH_NAME = re.compile(r"branch_(\d+)_")
 
 
-def _pool(rec: Record, raw: RawRecord) -> list[PoolEntry]:
-    pool = [PoolEntry(q, v, label) for q, v, label in CONSTANTS]
+def _pool(rec: Record, raw: RawRecord) -> list[Fact]:
+    pool = [pool_fact(q, v, label) for q, v, label in CONSTANTS]
     n = rec.n_branches
     for section, data in (("observation", raw.observation), ("action", raw.action),
                           ("previous_action", raw.previous_action or {})):  # fmt: skip
         skip = _PER_BRANCH_KEYS if section != "previous_action" else set()
         _walk({k: v for k, v in data.items() if not (k in skip and isinstance(v, list) and len(v) == n)}, section, pool)
     if rec.lw_k is not None:
-        pool.append(PoolEntry("temp_abs", rec.lw_k, "tower leaving-water setpoint"))
+        pool.append(pool_fact("temp_abs", rec.lw_k, "tower leaving-water setpoint"))
     for j in range(rec.n_branches):  # per-branch values, tagged for attribution checks
         for arr, q in ((rec.temps_k, "temp_abs"), (rec.powers_w, "power"), (rec.valves, "fraction")):
             if arr is not None and j < arr.size:
-                pool.append(PoolEntry(q, float(arr[j]), f"branch {j}", j))
+                pool.append(pool_fact(q, float(arr[j]), f"branch {j + 1}", j))
     if rec.powers_w is not None and rec.powers_w.sum() > 0:
         total = float(rec.powers_w.sum())
-        pool.append(PoolEntry("power", total, "total branch power"))
-        pool += [PoolEntry("fraction", float(p / total), f"power share of branch {j}", j)
+        pool.append(pool_fact("power", total, "total branch power"))
+        pool += [pool_fact("fraction", float(p / total), f"power share of branch {j + 1}", j)
                  for j, p in enumerate(rec.powers_w)]  # fmt: skip
     for dim, change in rec.changes.items():
         q = {"supply": "temp_delta", "tower": "temp_delta", "dp": "pressure", "flow": "flow"}[dim]
-        pool.append(PoolEntry(q, abs(change), f"{dim} change"))
+        pool.append(pool_fact(q, abs(change), f"{dim} change"))
     prev_valves = _array((raw.previous_action or {}).get("valve_fractions", (raw.previous_action or {}).get("valves")))
     if prev_valves is not None and prev_valves.size == n:  # "closed from 0.25 to 0.20" is said of the branch
-        pool += [PoolEntry("fraction", float(v), f"previous valve fraction of branch {j}", j)
+        pool += [pool_fact("fraction", float(v), f"previous valve fraction of branch {j + 1}", j)
                  for j, v in enumerate(prev_valves)]  # fmt: skip
     if rec.valve_changes is not None:
-        pool += [PoolEntry("fraction", abs(float(d)), f"valve change of branch {j}", j)
+        pool += [pool_fact("fraction", abs(float(d)), f"valve change of branch {j + 1}", j)
                  for j, d in enumerate(rec.valve_changes)]  # fmt: skip
     if rec.lw_k is not None and rec.wet_bulb_k is not None:
-        pool.append(PoolEntry("temp_delta", abs(rec.lw_k - rec.wet_bulb_k), "approach of the leaving-water setpoint"))
+        pool.append(pool_fact("temp_delta", abs(rec.lw_k - rec.wet_bulb_k), "approach of the leaving-water setpoint"))
     for f in _fact_items(raw.facts):
         value = _number(f.get("value"))
         if value is None:
@@ -318,10 +314,10 @@ def _pool(rec: Record, raw: RawRecord) -> list[PoolEntry]:
         entity = int(m.group(1)) - 1 if m else None  # our fact names count branches from 1
         _add(pool, q, value * scale + offset, f"fact {f.get('name')}", entity)
         if q == "unitless" and 0.0 <= value <= 1.0:
-            pool.append(PoolEntry("fraction", value, f"fact {f.get('name')}"))
+            pool.append(pool_fact("fraction", value, f"fact {f.get('name')}"))
     _mark_aliases(pool)
     for e in pool:
-        e.topic = next((name for name, pattern in TOPICS if pattern.search(e.label)), None)
+        e.topic = next((name for name, pattern in TOPICS if pattern.search(e.name)), None)
     return pool
 
 
@@ -338,18 +334,18 @@ _PER_BRANCH_KEYS = {"blade_temp_k", "branch_temp_k", "blade_temp_c", "branch_tem
 _ALIAS_TOL = {"power": 1.0, "pressure": 1.0, "fraction": 1e-4}  # our facts round to 3-4 decimals
 
 
-def _mark_aliases(pool: list[PoolEntry]) -> None:
+def _mark_aliases(pool: list[Fact]) -> None:
     """A value without a branch that equals a branch's value (``hottest_branch_temp``) is that branch's alias."""
-    owned = [(e.quantity, e.value, e.entity) for e in pool if e.entity is not None]
+    owned = [(e.quantity, e.value, e.branch) for e in pool if e.branch is not None]
     for e in pool:
-        if e.entity is None:
+        if e.branch is None:
             for q, v, j in owned:
                 if q == e.quantity and abs(v - e.value) <= _ALIAS_TOL.get(q, 1e-3):
                     e.alias = j
                     break
 
 
-def _walk(data: Any, path: str, pool: list[PoolEntry]) -> None:
+def _walk(data: Any, path: str, pool: list[Fact]) -> None:
     if isinstance(data, dict):
         for k, v in data.items():
             _walk(v, f"{path}.{k}", pool)
@@ -369,12 +365,12 @@ def _walk(data: Any, path: str, pool: list[PoolEntry]) -> None:
         elif (x := _number(v)) is not None:
             _add(pool, quantity, x * scale + offset, f"{path}[{i}]" if len(values) > 1 else path)
             if quantity == "unitless" and 0.0 <= x <= 1.0:
-                pool.append(PoolEntry("fraction", x, path))
+                pool.append(pool_fact("fraction", x, path))
 
 
-def _add(pool: list[PoolEntry], quantity: str, value: float, label: str, entity: int | None = None) -> None:
+def _add(pool: list[Fact], quantity: str, value: float, label: str, entity: int | None = None) -> None:
     if quantity == "temp":  # K: an absolute temperature above 150 K, else a difference
         quantity = "temp_abs" if value > 150 else "temp_delta"
     if quantity != "temp_abs":
         value = abs(value)  # text states magnitudes; directions are checked separately
-    pool.append(PoolEntry(quantity, value, label, entity))
+    pool.append(pool_fact(quantity, value, label, entity))

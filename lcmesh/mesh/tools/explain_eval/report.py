@@ -9,9 +9,11 @@ _SCORES = ("numeric_grounding", "coverage", "direction_consistency")
 
 def aggregate(items: list[dict]) -> dict:
     """Means over valid items (macro), pooled number and direction counts (micro), flag counts."""
-    valid = [it for it in items if not any(f["kind"] == "invalid_record" for f in it["flags"])]
+    invalid = [it for it in items if any(f["kind"] == "invalid_record" for f in it["flags"])]
+    unread = [it for it in items if any(f["kind"] == "not_read" for f in it["flags"])]
+    valid = [it for it in items if it not in invalid and it not in unread]
     n = len(valid)
-    agg: dict = {"n_items": len(items), "n_valid": n, "n_invalid": len(items) - n}
+    agg: dict = {"n_items": len(items), "n_valid": n, "n_invalid": len(invalid), "n_not_read": len(unread)}
     for key in _SCORES:
         agg[key] = sum(it[key] for it in valid) / n if n else 0.0
         agg[f"{key}_min"] = min((it[key] for it in valid), default=0.0)
@@ -25,6 +27,8 @@ def aggregate(items: list[dict]) -> dict:
     agg["direction_claims_checked"] = sum(d.get("checked", 0) for d in directions)
     agg["direction_claims_consistent"] = sum(d.get("consistent", 0) for d in directions)
     counts = Counter(f["kind"] for it in items for f in it["flags"])
+    agg["claims_checked"] = sum(len(it.get("claims", [])) for it in valid)
+    agg["claims_failed"] = sum(c["verdict"] == "fails" for it in valid for c in it.get("claims", []))
     agg["flag_counts"] = dict(sorted(counts.items()))
     agg["items_without_flags"] = sum(1 for it in valid if not it["flags"])
     return agg

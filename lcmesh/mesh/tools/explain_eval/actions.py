@@ -19,17 +19,17 @@ from __future__ import annotations
 
 import re
 from bisect import bisect_left
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from lcmesh.mesh.tools import vocab
+from lcmesh.mesh.tools.claims import Claim, Flag
 from lcmesh.mesh.tools.explain_eval import text as tx
 from lcmesh.mesh.tools.explain_eval.grounding import ValuePool, tolerance
 from lcmesh.mesh.tools.explain_eval.numbers import K0, PSI_TO_PA, NumberMention
 from lcmesh.mesh.tools.explain_eval.record import EvalConfig, Record
 
-Flag = tuple[str, str]
 
 
 @dataclass
@@ -43,6 +43,17 @@ class Context:
     branches: list[tx.BranchMention]
     base: int
     pool: ValuePool
+    claims: list[Claim] = field(default_factory=list)  # what the checks read, each with its verdict
+
+    def claim(self, relation: str, text: str, **kw) -> Claim:
+        """Record a claim read from the text (its verdict is set by the check)."""
+        c = Claim(relation, text, **kw)  # type: ignore[arg-type]
+        self.claims.append(c)
+        return c
+
+    def fail(self, relation: str, kind: str, detail: str, text: str = "", **kw) -> Flag:
+        """Record a claim that fails and return its flag."""
+        return self.claim(relation, text or detail, **kw).fails(kind, detail)
 
     def entity(self, b: tx.BranchMention) -> int:
         return b.raw - 1 if b.ordinal else b.raw - self.base
@@ -96,8 +107,11 @@ def check_coverage(ctx: Context) -> tuple[dict[str, bool], list[Flag]]:
         dims[name] = any(_scalar_covered(ctx, s, pattern, quantity, value, change_key) for s in ctx.sentences)
     flags = []
     for name, ok in dims.items():
-        if not ok:
-            flags.append(("missing_action_dimension", f"the {_describe(ctx, name)} is not explained"))
+        if ok:
+            ctx.claim("covers", f"the {_describe(ctx, name)} is explained", entity=name).holds("the action")
+        else:
+            flags.append(ctx.fail("covers", "missing_action_dimension", f"the {_describe(ctx, name)} is not explained",
+                                  entity=name))  # fmt: skip
     return dims, flags
 
 
@@ -330,11 +344,17 @@ def check_direction(ctx: Context) -> tuple[int, int, list[Flag]]:
                 checked += 1
                 if pol == expected[0]:
                     consistent += 1
+                    ctx.claim("change", clause.text.strip(), entity=_dim_name(ctx, dim), sign=_SIGN[pol]).holds(
+                        f"{_dim_name(ctx, dim)} went {expected[0]} ({expected[1]})")
                 else:
                     what = _dim_name(ctx, dim)
-                    flags.append(("wrong_direction", f"'{clause.text.strip()}' says {pol} but the {what} went "
-                                                     f"{expected[0]} ({expected[1]})"))  # fmt: skip
+                    flags.append(ctx.fail("change", "wrong_direction", f"'{clause.text.strip()}' says {pol} but the "
+                                          f"{what} went {expected[0]} ({expected[1]})", clause.text.strip(),
+                                          entity=what, sign=_SIGN[pol]))  # fmt: skip
     return checked, consistent, flags
+
+
+_SIGN = {"up": 1, "down": -1, "hold": 0}
 
 
 def _dim_name(ctx: Context, dim: str) -> str:
