@@ -194,6 +194,8 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "bulbo húmedo": ("wet_bulb",), "impulsión del agua caliente": ("htw_supply_temp",),
     "retorno del agua caliente": ("htw_return_temp",), "en banda": ("in_band",),
     "dentro de la banda": ("in_band", "inside", "total", "band_low", "band_high"), "energía": _ENERGY,
+    "diferencial de presión": ("dp", "dp_setpoint"), "salida de la torre": ("leaving_water", "lw_setpoint", "lw"),
+    "salida de torre": ("leaving_water", "lw_setpoint", "lw"),
     # de
     "vorlauf": ("supply_temp", "supply_setpoint", "supply"), "vorlaufsollwert": ("supply_setpoint", "supply"),
     "vorlauf-sollwert": ("supply_setpoint", "supply"), "vorlauftemperatur-sollwert": ("supply_setpoint", "supply"),
@@ -208,6 +210,9 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "kühlung braucht": ("cooling_power",), "feuchtkugel": ("wet_bulb",), "warmwasser-vorlauf": ("htw_supply_temp",),
     "warmwasser-rücklauf": ("htw_return_temp",), "im band": ("in_band",),
     "innerhalb des": ("in_band", "inside", "total", "band_low", "band_high"), "energie": _ENERGY,
+    "vorlauf-soll": ("supply_setpoint", "supply"), "vorlaufsoll": ("supply_setpoint", "supply"),
+    "turm-soll": ("lw_setpoint", "lw"), "turmsoll": ("lw_setpoint", "lw"), "kühlturm": ("leaving_water", "lw"),
+    "turmaustritt": ("leaving_water", "lw_setpoint", "lw"), "austritt": ("leaving_water", "lw_setpoint", "lw"),
     # fr
     "départ": ("supply_temp", "supply_setpoint", "supply"), "consigne de départ": ("supply_setpoint", "supply"),
     "alimentation": ("supply_temp", "supply_setpoint", "supply"), "consigne d'alimentation": ("supply_setpoint", "supply"),
@@ -224,6 +229,9 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "retour d'eau chaude": ("htw_return_temp",), "lames": ("blade_temp", "blade_temp_mean"),
     "dans la bande": ("in_band",),
     "à l'intérieur de la bande": ("in_band", "inside", "total", "band_low", "band_high"), "énergie": _ENERGY,
+    "soufflage": ("supply_temp", "supply_setpoint", "supply"), "consigne de soufflage": ("supply_setpoint", "supply"),
+    "eau sortie": ("leaving_water", "lw_setpoint", "lw"), "sortie de tour": ("leaving_water", "lw_setpoint", "lw"),
+    "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "consigne tour": ("lw_setpoint", "lw"),
 }  # fmt: skip
 QUANTITY = re.compile("|".join(re.escape(w) for w in sorted(QUANTITY_WORDS, key=len, reverse=True)), I)
 
@@ -275,7 +283,7 @@ VALVE_WORDS = {
     "es": ("válvulas?", "fracci(?:ón|ones)", "aperturas?", "reparto", r"repart\w*", r"distribu\w*",
            r"(?:cuota|parte)\s+del\s+caudal", r"del\s+caudal", "abierta", "abierto", "abrió", "abre", "cerrada",
            "cerrado", "cerró", "cierra", r"estrangul\w*"),
-    "de": ("ventile?", "ventilanteile?", r"anteile?", r"öffnung\w*", "aufteilung", r"verteil\w*",
+    "de": ("ventile?", r"ventil(?!ator|ador)\w+", "ventilanteile?", r"anteile?", r"öffnung\w*", "aufteilung", r"verteil\w*",
            r"des\s+durchflusses", r"durchflussanteile?", "geöffnet", r"öffnet", "geschlossen", r"schließt",
            r"gedrosselt", r"drosselt"),
     "fr": ("vannes?", "fractions?", r"ouvertures?", "répartition", r"répart\w*", r"distribu\w*", r"(?:part\s+)?du\s+débit",
@@ -325,10 +333,11 @@ _SHARE_EN = r"\s+(?:\w+\s+)?(?:flow|coolant|share|fraction|opening)"
 SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     # the valves split equally
     "equal": {"en": (r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
-                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each"),
-              "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*"),
-              "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*"),
-              "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales")},
+                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third",
+                     r"(?<![\d.,/])1/3(?![\d.,/])", r"thirds"),
+              "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios"),
+              "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt"),
+              "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers")},
     "each": {"en": ("each", "every", "all"), "es": ("cada", "todas", "todos"), "de": (r"jede[nrs]?", "alle", "je"),
              "fr": ("chaque", "chacune?", "toutes", "tous")},
     # "its valve ...": the branch the previous sentence was about

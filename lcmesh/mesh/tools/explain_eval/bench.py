@@ -84,7 +84,11 @@ FRESH = "fresh.jsonl"  # issue 24: a fresh test part, written on the test decisi
 FRESH_DEV = "fresh_dev.jsonl"  # its tuning twin: the same kinds of texts by another outside author, on dev decisions
 FRESH2 = "fresh2.jsonl"  # issue 35: a new test part by a third outside author (the decision records and a plain brief
 # on each flaw kind, never the judge's code, texts or misses), written before any change for issue 35; never tuned on
-FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2}
+DEV3 = "dev3.jsonl"  # issue 35: tuning texts by two more outside authors (d1, d2) on the dev decisions, free-form and
+# 50 % es/de/fr; the judge was tuned on them (their texts and misses were read)
+FRESH3 = "fresh3.jsonl"  # issue 35: the new test part, by two outside authors (t1, t2) who never saw the judge, its
+# texts or misses, written before the judge was tuned for issue 35; only its aggregates were read, after the tuning
+FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2, "dev3": DEV3, "fresh3": FRESH3}
 
 
 def load_fresh(folder: Path = CORPUS, name: str = FRESH) -> list[dict]:

@@ -52,7 +52,7 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
     language = vocab.language_of(rec.text)
     if language is None:
         return _not_read(rec.id)
-    rec.text = tx.normalize(rec.text)
+    rec.text = tx.normalize(rec.text, language)
     pool = ValuePool(rec.pool)
     mentions = tx.branch_mentions(rec.text)
     ctx = Context(rec, cfg, tx.sentences(rec.text), extract_numbers(rec.text), mentions,

@@ -87,13 +87,23 @@ _KV_PAIR_GAP = re.compile(r"\s+(?=[A-Za-z][\w.-]*\s*=)")  # "valve1=0.33 valve1_
 _GENERIC_HEADERS = re.compile(r"^(?:value|now|current|new|valor|wert|valeur|actual)$", I)
 
 
-def _decimal_commas(text: str) -> str:
+# Spanish, German and French write the decimal comma whatever follows it ("0,333", "1.050,3 kW"): there a comma
+# between digits is decimal and dots before a decimal comma group thousands
+_DECIMAL_COMMA_ANY = re.compile(r"(?<![\w,.])(\d+),(?=\d+(?!\d|,\d))")
+_THOUSAND_DOTS = re.compile(r"(?<![\w.,])\d{1,3}(?:\.\d{3})+(?=,\d)")
+_LEADING_ZERO_COMMA = re.compile(r"(?<![\w,.])0,(?=\d+(?!\d|,\d))")  # "0,333" is no thousands group in any language
+
+
+def _decimal_commas(text: str, language: str = "en") -> str:
     def repl(m: re.Match) -> str:
         if m.group(1) != "0" and _INDEX_BEFORE.search(text[max(0, m.start() - 20) : m.start()]):
             return m.group()
         return m.group(1) + "."
 
-    return _DECIMAL_COMMA.sub(repl, text)
+    if language in ("es", "de", "fr"):
+        text = _THOUSAND_DOTS.sub(lambda m: m.group().replace(".", ""), text)
+        return _DECIMAL_COMMA_ANY.sub(repl, text)
+    return _DECIMAL_COMMA.sub(repl, _LEADING_ZERO_COMMA.sub("0.", text))
 
 
 def _flatten_json(text: str) -> str:
@@ -147,14 +157,14 @@ def _is_the_branch(line: str) -> str:
     return "".join(out) + line[last:]
 
 
-def normalize(text: str) -> str:
+def normalize(text: str, language: str = "en") -> str:
     """Plain sentences from the shapes other systems write: decimal commas become points, a JSON object one line
     per object holding values, markdown table rows "key: header value, ... (change)" lines, key-value lines with a
     change in brackets or after a comma "key raised at value.", a line of key=value fields one field at a time,
     log shorthand is spelled out (``supply_sp`` -> supply setpoint, ``b2=`` -> branch 2 valve, arrows -> raised /
     lowered). Prose without these shapes is returned unchanged."""
     out, header = [], None
-    text = _flatten_json(_decimal_commas(text))
+    text = _flatten_json(_decimal_commas(text, language))
     for line in text.splitlines():
         s = line.strip()
         if len(s) > 1 and s.startswith("|") and s.endswith("|"):
