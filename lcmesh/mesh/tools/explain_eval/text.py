@@ -217,6 +217,11 @@ def _row(cells: list[str], header: list[str]) -> str:
 # --- sections and sentences -------------------------------------------------------------------
 
 _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
+# chat and log writers start sentences in lower case too ("dp held. torre sube a 29,0 °C"), but not after an
+# abbreviation ("cons. 18,0 °C", "approx. 3 K", "z. B.")
+_LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[a-zà-öø-ÿ])")
+_ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|e\.g|i\.e|z\.\s?b|"
+                           r"u\.\s?a|d\.\s?h|p\.\s?ej|c\.-à-d)\.)$", I)
 _SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔ\"'(\[*•¿¡-])")
 _AND = vocab.alternation(*function_words("and"))
 _BRANCH_WORDS = vocab.alternation(*(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))
@@ -260,7 +265,9 @@ def sentences(text: str) -> list[Sentence]:
         if not line.strip():
             continue
         body = line.rstrip("\n")
-        cuts = [0] + [m.end() for m in _SENTENCE_END.finditer(body)] + [len(body)]
+        ends = [m.end() for pattern in (_SENTENCE_END, _LOWER_SENTENCE_END) for m in pattern.finditer(body)
+                if not _ABBREVIATION.search(body[: m.start()].rstrip("\"')]"))]
+        cuts = [0] + sorted(set(ends)) + [len(body)]
         for a, b in zip(cuts, cuts[1:]):
             piece = body[a:b]
             lead = len(piece) - len(piece.lstrip())
