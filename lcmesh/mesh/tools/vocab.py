@@ -211,6 +211,7 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "warmwasser-rücklauf": ("htw_return_temp",), "im band": ("in_band",),
     "innerhalb des": ("in_band", "inside", "total", "band_low", "band_high"), "energie": _ENERGY,
     "vorlauf-soll": ("supply_setpoint", "supply"), "vorlaufsoll": ("supply_setpoint", "supply"),
+    "vl-soll": ("supply_setpoint", "supply"), "kt-soll": ("lw_setpoint", "lw"), "kt-austritt": ("lw_setpoint", "lw"),
     "turm-soll": ("lw_setpoint", "lw"), "turmsoll": ("lw_setpoint", "lw"), "kühlturm": ("leaving_water", "lw"),
     "turmaustritt": ("leaving_water", "lw_setpoint", "lw"), "austritt": ("leaving_water", "lw_setpoint", "lw"),
     # fr
@@ -334,7 +335,7 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     # the valves split equally
     "equal": {"en": (r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
                      "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third",
-                     r"(?<![\d.,/])1/3(?![\d.,/])", r"thirds"),
+                     r"(?<![\d/])(?<!\d[.,])1/3(?![\d/])(?![.,]\d)", r"thirds"),
               "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios"),
               "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers")},

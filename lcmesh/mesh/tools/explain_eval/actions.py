@@ -158,7 +158,8 @@ def _valves_covered(ctx: Context) -> set[int]:
                      and not (m.unit == "%" and other_share(text, m))]  # fmt: skip
             share = any(m.unit == "%" for m in cited)  # "branch 2 gets 41 %": a share of the flow
             talks = tx.VALVE.search(span) and (tx.ANY_DIRECTION.search(span) or tx.EQUAL_SPLIT.search(span))
-            if (cited and (has_valve_word or previous_valves or tx.VALVE.search(span))) or share or talks:
+            exact = any(m.unit == "" and m.decimals >= 2 for m in cited)  # "branche 3 passe de 0,388 à 0,373"
+            if (cited and (has_valve_word or previous_valves or exact or tx.VALVE.search(span))) or share or talks:
                 covered.add(j)
         previous_valves = has_valve_word or len(covered) > before_sentence
         if not has_valve_word:
@@ -236,6 +237,8 @@ def _in_order(ctx: Context, mentions: list[NumberMention], valves: np.ndarray) -
 def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -> bool:
     if not pattern.search(s.text):
         return False
+    if _named_with_value(ctx, s, pattern, quantity, change_key):
+        return True
     change = ctx.rec.changes.get(change_key)
     for m in ctx.numbers_in(s.start, s.end):
         if value is not None and ctx.matches(m, quantity, value):
@@ -251,6 +254,29 @@ def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -
     # leaving-water setpoint makes the fans work harder" does not say what the action did)
     return any(dim == change_key for c in s.clauses if not c.hypothetical
                for dim, _, _ in direction_claims(ctx, c, include_valves=False))  # fmt: skip
+
+
+_SETPOINT_WORD = re.compile(vocab.SETPOINT_WORD.pattern + r"|\bsoll\b|\bcons\b", re.IGNORECASE)
+
+
+def _named_with_value(ctx, s: tx.Sentence, pattern, quantity, change_key) -> bool:
+    """A clause that names the dimension and gives a value of its kind (a temperature for the supply and the tower, a
+    pressure for dp, a flow) says what the setting is, right or wrong (grounding judges the number): "soufflage 30,0
+    °C", "Turm-Soll 17,7 °C", "el diferencial de presión en 27,5 psi". The measured supply shares the supply's name, so
+    there the value must be the setpoint's (now or before), or the clause must name the setpoint or a change."""
+    supply, change = ctx.rec.supply_k, ctx.rec.changes.get("supply")
+    setpoints = [] if supply is None else [supply] + ([supply - change] if change is not None else [])
+    for c in s.clauses:
+        if c.hypothetical or not pattern.search(c.text):
+            continue
+        for m in ctx.numbers_in(c.start, c.end):
+            if not m.unit or not any(q == quantity for q, _, _ in m.interpretations):
+                continue
+            if change_key != "supply" or any(ctx.matches(m, quantity, x) for x in setpoints):
+                return True
+            if tx.SUPPLY_SETPOINT.search(c.text) or _SETPOINT_WORD.search(c.text) or tx.ANY_DIRECTION.search(c.text):
+                return True
+    return False
 
 
 # --- direction ----------------------------------------------------------------------------------

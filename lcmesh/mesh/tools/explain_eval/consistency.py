@@ -69,6 +69,9 @@ def _rank_tol(ctx: Context, what: str, values: np.ndarray) -> float:
     return ctx.cfg.rel_tol * float(np.abs(values).max())
 
 
+_NEXT_PHRASE = re.compile(r"[,;]|\b(?:and|und|y|e|et|while|whereas|mientras|während|tandis|sowie)\b", re.I)
+
+
 def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.BranchMention | None:
     """The branch a superlative is said of: the nearest mention in its clause (12 words), else the sentence's
     last mention before it (its subject, 25 words), else a mention right after it (3 words)."""
@@ -83,7 +86,10 @@ def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.Bra
         after = [b for b in mentions if b.start >= named.end() and tx.words_between(text, named.end(), b.start) <= 1]
         if after:
             return after[0]
-    same = [b for b in mentions if clause is not None and clause.start <= b.start < clause.end and dist(b) <= 12]
+    # a mention after the superlative behind "and" / "und" / "y" / "et" or a comma opens the next phrase: "Zweig 2 mit
+    # 27,1 °C der kühlste und Zweig 3 der wärmste" ranks Zweig 2 coolest
+    same = [b for b in mentions if clause is not None and clause.start <= b.start < clause.end and dist(b) <= 12
+            and not (b.start >= w1 and _NEXT_PHRASE.search(text, w1, b.start))]
     if same:
         return min(same, key=dist)
     before = [b for b in mentions if b.end <= w0 and dist(b) <= 25]
@@ -274,6 +280,13 @@ def check_bounds(ctx: Context) -> list[Flag]:
     return flags + _stated_setpoints(ctx) + _stated_valves(ctx) + _stated_branch_count(ctx)
 
 
+def _stated(ctx: Context, m, detail: str) -> Flag:
+    """A value the text gives for a setting, outside its range: one failed claim at the number (grounding does not
+    flag the same number again)."""
+    return ctx.fail("bound", "out_of_bounds", detail, ctx.rec.text[m.start : m.unit_end if m.unit_end > 0 else m.end],
+                    start=m.start, end=m.end)
+
+
 def _stated_setpoints(ctx: Context) -> list[Flag]:
     """A temperature named as the supply or leaving-water setpoint (grounding's naming rule) or a pressure in a
     clause naming the dp, outside its range (or, for the leaving water, below the record's wet bulb)."""
@@ -290,13 +303,13 @@ def _stated_setpoints(ctx: Context) -> list[Flag]:
             ulp = m.half_ulp * (5 / 9 if m.unit == "degF" else 1.0) + 1e-6  # "64.4 °F" is the 18 °C edge, as written
             topic = _topic_of(ctx.rec.text, m)
             if topic == "supply_setpoint" and not b.supply_setpoint_c[0] - ulp <= c <= b.supply_setpoint_c[1] + ulp:
-                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the supply setpoint, outside "
+                flags.append(_stated(ctx, m, f"'{quote}' is given as the supply setpoint, outside "
                                                f"[{b.supply_setpoint_c[0]:g}, {b.supply_setpoint_c[1]:g}] °C"))
             elif topic == "lw_setpoint" and not b.lw_setpoint_c[0] - ulp <= c <= b.lw_setpoint_c[1] + ulp:
-                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, outside "
+                flags.append(_stated(ctx, m, f"'{quote}' is given as the leaving-water setpoint, outside "
                                                f"[{b.lw_setpoint_c[0]:g}, {b.lw_setpoint_c[1]:g}] °C"))
             elif topic == "lw_setpoint" and wet_bulb_c is not None and c < wet_bulb_c - ulp:
-                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the leaving-water setpoint, below the "
+                flags.append(_stated(ctx, m, f"'{quote}' is given as the leaving-water setpoint, below the "
                                                f"{wet_bulb_c:.1f} °C wet bulb"))  # fmt: skip
             elif topic in ("supply_setpoint", "lw_setpoint"):
                 ctx.claim("bound", quote, quantity=topic, value=c, unit="degC").holds("the plant's limits")
@@ -306,7 +319,7 @@ def _stated_setpoints(ctx: Context) -> list[Flag]:
             between = _clause_before(ctx, m.start)[names[-1].end() :] if names else ""
             ulp = m.half_ulp * psi / m.value + 1e-6 if m.value else 1e-6
             if names and not DIFF_CUE.search(between) and not b.dp_psi[0] - ulp <= psi <= b.dp_psi[1] + ulp:
-                flags.append(ctx.fail("bound", "out_of_bounds", f"'{quote}' is given as the dp setpoint, outside "
+                flags.append(_stated(ctx, m, f"'{quote}' is given as the dp setpoint, outside "
                                                f"[{b.dp_psi[0]:g}, {b.dp_psi[1]:g}] psi"))  # fmt: skip
     return flags
 

@@ -60,10 +60,13 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
     grounding = check_grounding(rec, ctx.numbers, pool, lambda pos: _clause_text(ctx, pos),
                                 lambda pos: _branch_at(ctx, pos), cfg, ctx.base,
                                 frozenset(m.start for m in rounded_shares(ctx)))  # fmt: skip
-    flags = [Flag("ungrounded_number", p) for p in grounding.problems]
     dims, coverage_flags = check_coverage(ctx)
     checked, consistent, direction_flags = check_direction(ctx)
-    flags += coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx)
+    later = coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx)
+    # a claim fails once, with its most specific flag: a setpoint the text gives outside the plant's range is
+    # out_of_bounds, not also an ungrounded number
+    out_of_range = {c.start for c in ctx.claims if c.relation == "bound" and c.verdict == "fails" and c.start >= 0}
+    flags = [c.flag for c in grounding.claims if c.flag is not None and c.start not in out_of_range] + later
     if rec.level is not None:
         found = {s.section for s in ctx.sentences} | _headings(rec.text)
         flags += [Flag("missing_section", f"the {rec.level} level needs a '{h}' section")
