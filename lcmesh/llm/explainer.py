@@ -38,7 +38,9 @@ from lcmesh.llm.budget import Clock
 from lcmesh.llm.io_format import load_template
 from lcmesh.mesh.tools.explain import explanation_record, render_explanation
 from lcmesh.mesh.tools.explain_eval import LEVEL_SECTIONS, evaluate_record
-from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
+from lcmesh.mesh.tools.claims import Claim, states
+from lcmesh.mesh.tools.claims import Fact as CheckFact
+from lcmesh.mesh.tools.explain_eval.numbers import read_numbers
 from lcmesh.mesh.tools.facts import K0, Fact, cabinet_decision_facts, decision_whatif_facts
 from lcmesh.twin.plant import PlantAction
 from lcmesh.twin.system import SystemDescription
@@ -93,11 +95,16 @@ _CANONICAL = {"degC": ("temp_abs", lambda v: v + K0), "K": ("temp_delta", abs), 
 _CLAIM_TOL = {"temp_abs": 0.051, "temp_delta": 0.051, "power": 51.0}  # the facts' display precision (0.1 degC, kW)
 
 
-def _states(mentions, fact: Fact) -> bool:
-    q, to_si = _CANONICAL[fact.unit]
-    target = to_si(float(fact.value))
-    return any(m.unit and any(iq == q and abs(iv - target) <= max(_CLAIM_TOL[q], tol) for iq, iv, tol in m.interpretations)
-               for m in mentions)  # fmt: skip
+def _check_fact(fact: Fact) -> CheckFact:
+    """A toolbox fact as the checks read it: its value in SI, with its quantity."""
+    quantity, to_si = _CANONICAL[fact.unit]
+    return CheckFact(fact.name, to_si(float(fact.value)), quantity, fact.unit)
+
+
+def _states(claims: list[Claim], fact: Fact) -> bool:
+    """One of the number claims states the fact at the facts' display precision (or the number's own)."""
+    target = _check_fact(fact)
+    return states(claims, target.quantity, target.value, _CLAIM_TOL[target.quantity])
 
 
 def unverified_whatif_numbers(text: str, facts: list[Fact]) -> list[str]:
@@ -107,13 +114,12 @@ def unverified_whatif_numbers(text: str, facts: list[Fact]) -> list[str]:
         return []
     section = text[text.index(WHATIF_HEADING) :]
     numeric = [f for f in facts if f.unit in _CANONICAL and isinstance(f.value, (int, float))]
-    return [m.text for m in extract_numbers(section)
-            if m.role == "measure" and m.unit and not any(_states([m], f) for f in numeric)]  # fmt: skip
+    return [c.text for c in read_numbers(section) if c.unit and not any(_states([c], f) for f in numeric)]
 
 
 def whatif_claims(text: str, whatif_facts: list[Fact], rendered: str) -> list[str]:
     """Names of the what-if facts ``text`` states with a unit (the input label with its value) and ``rendered`` does not."""
-    said, base = extract_numbers(text), extract_numbers(rendered)
+    said, base = read_numbers(text), read_numbers(rendered)
     by_name = {f.name: f for f in whatif_facts}
     claims = []
     for f in whatif_facts:

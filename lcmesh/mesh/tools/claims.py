@@ -96,6 +96,11 @@ class Claim:
         self.verdict, self.fact, self.flag = "fails", fact or self.fact, Flag(kind, detail)
         return self.flag
 
+    def fails_claim(self, kind: str, detail: str, fact: str = "") -> Claim:
+        """Mark the claim failed; returns the claim."""
+        self.fails(kind, detail, fact)
+        return self
+
     def as_dict(self) -> dict:
         """The claim as the report shows it (JSON)."""
         out = {k: v for k, v in asdict(self).items() if k not in ("readings", "extra", "start", "end")}

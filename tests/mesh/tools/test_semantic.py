@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from lcmesh.mesh.tools.semantic import ENTITY, Bound, Ranking, canonical_entity, check
+from lcmesh.mesh.tools.semantic import ENTITY, canonical_entity, check, rank_fact
+from lcmesh.mesh.tools.semantic import value_fact as Bound
 from lcmesh.mesh.tools.vocab import DIRECTION_WORDS
 
 VALUES = [
@@ -12,11 +13,18 @@ VALUES = [
     Bound("36.4", "cabinet 4", "blade_temp"), Bound("4.6", "plant", "wet_bulb"),
     Bound("0.1", "plant", "tower_power", signed=-0.06), Bound("1.032", "plant", "pue"),
 ]  # fmt: skip
-RANKS = [Ranking("blade_temp", "highest", "cabinet 5")]
+RANKS = [rank_fact("blade_temp", "highest", "cabinet 5")]
 
 
 def kinds(text: str) -> list[str]:
-    return [p.kind for p in check(text, VALUES, RANKS)]
+    """Each failed claim's flag, with its reason where the flag is an ungrounded number ("ungrounded_number:
+    wrong_entity")."""
+    return [_kind(c) for c in check(text, VALUES, RANKS)]
+
+
+def _kind(c) -> str:
+    reason = c.extra.get("reason")
+    return f"{c.flag.kind}:{reason}" if reason else c.flag.kind
 
 
 def test_a_true_text_passes():
@@ -25,28 +33,28 @@ def test_a_true_text_passes():
 
 
 def test_inverting_hottest_and_coolest_is_caught():
-    assert kinds("Cabinet 5 runs coolest at 37.7 °C.") == ["wrong_rank"]
-    assert "wrong_rank" in kinds("Cabinet 3 runs hottest.")
+    assert kinds("Cabinet 5 runs coolest at 37.7 °C.") == ["wrong_ranking"]
+    assert "wrong_ranking" in kinds("Cabinet 3 runs hottest.")
 
 
 def test_a_value_moved_to_another_entity_is_caught():
-    assert kinds("Cabinet 3 is at 36.6 °C.") == ["wrong_entity"]
-    assert kinds("36.6 °C in cabinet 4.") == ["wrong_entity"]
+    assert kinds("Cabinet 3 is at 36.6 °C.") == ["ungrounded_number:wrong_entity"]
+    assert kinds("36.6 °C in cabinet 4.") == ["ungrounded_number:wrong_entity"]
 
 
 def test_one_quantitys_value_given_for_another_is_caught():
-    assert kinds("The wet bulb is 37.7 °C.") == ["wrong_quantity"]
+    assert kinds("The wet bulb is 37.7 °C.") == ["ungrounded_number:wrong_quantity"]
 
 
 def test_a_number_the_data_does_not_hold_is_caught():
-    assert kinds("The wet bulb is 4.7 °C.") == ["unbound_number"]
+    assert kinds("The wet bulb is 4.7 °C.") == ["ungrounded_number:no_value"]
 
 
 def test_directions_must_match_the_sign_of_the_change():
     assert kinds("Tower fan power went down 0.1 kW.") == []
     assert kinds("Tower fan power went up 0.1 kW.") == ["wrong_direction"]
     problems = check("Raised the supply setpoint from 25.7 to 25.1.", [Bound("25.7"), Bound("25.1")])
-    assert [p.kind for p in problems] == ["wrong_direction"]
+    assert [p.flag.kind for p in problems] == ["wrong_direction"]
 
 
 def test_entities_are_read_as_operators_write_them():
@@ -72,8 +80,8 @@ SENTENCES = [
 @pytest.mark.parametrize(("lang", "true", "moved", "inverted", "wrong_way"), SENTENCES, ids=[s[0] for s in SENTENCES])
 def test_the_guard_reads_each_language(lang, true, moved, inverted, wrong_way):
     assert kinds(true) == []
-    assert kinds(moved) == ["wrong_entity"]
-    assert kinds(inverted) == ["wrong_rank"]
+    assert kinds(moved) == ["ungrounded_number:wrong_entity"]
+    assert kinds(inverted) == ["wrong_ranking"]
     assert kinds(wrong_way) == ["wrong_direction"]
 
 
@@ -88,7 +96,7 @@ def test_entity_words_of_every_language_and_blade_groups():
     assert not list(ENTITY.finditer("the hottest blade group 35.0 °C; ventiladores de las torres 48 kW"))
     values = [Bound("41.2", "blade group 2 of branch 1 of cabinet 3", "blade_temp")]
     assert check("Blade group 2 of branch 1 of cabinet 3 is at 41.2 °C.", values) == []
-    assert [p.kind for p in check("Blade group 3 of branch 1 is at 41.2 °C.", values)] == ["wrong_entity"]
+    assert [_kind(p) for p in check("Blade group 3 of branch 1 is at 41.2 °C.", values)] == ["ungrounded_number:wrong_entity"]
 
 
 @pytest.mark.parametrize("lang", ["es", "de", "fr"])
@@ -98,5 +106,5 @@ def test_every_up_and_down_word_is_read_its_way(lang):
     raised = [Bound("0.1", "plant", "supply_setpoint", signed=0.1)]
     for pol in ("up", "down"):
         for word in DIRECTION_WORDS[pol][lang]:
-            got = [p.kind for p in check(f"Supply {word} 0.1.", raised)]
+            got = [_kind(p) for p in check(f"Supply {word} 0.1.", raised)]
             assert got == ([] if pol == "up" else ["wrong_direction"]), word

@@ -228,9 +228,9 @@ def test_the_catalog_is_complete_and_digit_free():
 def test_the_guard_reads_every_quantity_label_as_its_own_quantity(lang):
     for key, q in QUANTITIES.items():
         label = quantity_label(lang, key, q.label)[1]
-        assert semantic.check(f"{label}: 1.5.", [semantic.Bound("1.5", "plant", key)]) == [], label
-        wrong = semantic.check(f"{label}: 1.5.", [semantic.Bound("1.5", "plant", "not_a_quantity")])
-        assert [p.kind for p in wrong] == ["wrong_quantity"], label
+        assert semantic.check(f"{label}: 1.5.", [semantic.value_fact("1.5", "plant", key)]) == [], label
+        wrong = semantic.check(f"{label}: 1.5.", [semantic.value_fact("1.5", "plant", "not_a_quantity")])
+        assert [(p.flag.kind, p.extra["reason"]) for p in wrong] == [("ungrounded_number", "wrong_quantity")], label
 
 
 # --- inversions planted in each language ---------------------------------------------------------------------------
@@ -248,17 +248,18 @@ def _case(cases, tool: str, **args) -> tuple[str, dict, dict]:
 
 
 def _kinds(text: str, facts: list) -> list[str]:
-    return [p.kind for p in check_answer(text, facts)]
+    return [f"{p.flag.kind}:{p.extra['reason']}" if p.extra.get("reason") else p.flag.kind
+            for p in check_answer(text, facts)]
 
 
 @pytest.mark.parametrize("lang", LANGUAGES)
 def test_a_swapped_superlative_is_caught(cases, lang):
     text, facts = written(*_case(cases, "rank", quantity="blade_temp"), lang)
-    assert HIGHEST[lang] in text and "wrong_rank" in _kinds(text.replace(HIGHEST[lang], LOWEST[lang], 1), facts)
+    assert HIGHEST[lang] in text and "wrong_ranking" in _kinds(text.replace(HIGHEST[lang], LOWEST[lang], 1), facts)
     text, facts = written(*_case(cases, "rank", quantity="supply_temp"), lang)
-    assert LOWEST[lang] in text and "wrong_rank" in _kinds(text.replace(LOWEST[lang], HIGHEST[lang], 1), facts)
+    assert LOWEST[lang] in text and "wrong_ranking" in _kinds(text.replace(LOWEST[lang], HIGHEST[lang], 1), facts)
     text, facts = written(*_case(cases, "overview"), lang)
-    assert HOTTEST[lang] in text and "wrong_rank" in _kinds(text.replace(HOTTEST[lang], COLDEST[lang]), facts)
+    assert HOTTEST[lang] in text and "wrong_ranking" in _kinds(text.replace(HOTTEST[lang], COLDEST[lang]), facts)
 
 
 def _mirrored(tool: str, result: dict) -> dict:
@@ -290,14 +291,14 @@ def test_a_reversed_direction_is_caught(cases, lang, mirror):
 def test_a_value_moved_to_another_entity_or_quantity_is_caught(cases, lang):
     text, facts = written(*_case(cases, "plant_state", quantity="return_temp"), lang)
     moved = text.replace(CABINET[lang].format(2), CABINET[lang].format(5))
-    assert moved != text and _kinds(moved, facts) == ["wrong_entity"]
+    assert moved != text and _kinds(moved, facts) == ["ungrounded_number:wrong_entity"]
     text, facts = written(*_case(cases, "plant_state", branch=2), lang)
     moved = text.replace(CABINET[lang].format(3), CABINET[lang].format(4))  # branch 2 of another cabinet
-    assert moved != text and _kinds(moved, facts) == ["wrong_entity"]
+    assert moved != text and _kinds(moved, facts) == ["ungrounded_number:wrong_entity"]
     text, facts = written(*_case(cases, "plant_state", quantity="wet_bulb"), lang)
     wet_bulb = quantity_label(lang, "wet_bulb", QUANTITIES["wet_bulb"].label)[0]
     other = quantity_label(lang, "return_temp", QUANTITIES["return_temp"].label)[0]
-    assert _kinds(text.replace(wet_bulb, other), facts) == ["wrong_quantity"]
+    assert _kinds(text.replace(wet_bulb, other), facts) == ["ungrounded_number:wrong_quantity"]
 
 
 # --- the engine: language detected, passed through, reported ---------------------------------------------------

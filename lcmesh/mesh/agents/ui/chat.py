@@ -36,6 +36,7 @@ from lcmesh.mesh.agents.ui.phrasing import Phraser, TemplatePhraser
 from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall
 from lcmesh.mesh.ratelimit import RateLimited
 from lcmesh.mesh.tools import registry, semantic
+from lcmesh.mesh.tools.claims import Claim, Fact
 from lcmesh.mesh.tools.vocab import (
     ASKED_STATS, DOWN_ASKED, HIGH_WORD, LOW_WORD, MEASURED_WORD, MISSING_WORDS, PAIRED_CONCEPTS, QUESTION_CONCEPTS,
     SETPOINT_WORD, TRACKING_ERROR, UP_ASKED,
@@ -90,7 +91,7 @@ class ToolRunner:
             return registry.ToolResult(ok=False, tool=call.tool, error=str(exc), not_ready=True)
 
 
-def guard_data(facts: list[ChatFact]) -> tuple[list[semantic.Bound], list[semantic.Ranking]]:
+def guard_data(facts: list[ChatFact]) -> tuple[list[Fact], list[Fact]]:
     """The values and rankings an answer may state, from the facts its tool results produced."""
     values, rankings = [], []
     for f in facts:
@@ -98,15 +99,15 @@ def guard_data(facts: list[ChatFact]) -> tuple[list[semantic.Bound], list[semant
             continue
         signed = float(f.value) if f.ref.get("stat") == "change" else None
         for shown in numbers_in(f.display)[:1]:
-            values.append(semantic.Bound(shown, f.entity, f.quantity, signed))
+            values.append(semantic.value_fact(shown, f.entity, f.quantity, signed))
         if f.ref.get("rank") == 1:
-            rankings.append(semantic.Ranking(f.quantity, f.ref["order"], f.entity))
+            rankings.append(semantic.rank_fact(f.quantity, f.ref["order"], f.entity))
         if f.ref.get("extreme"):
-            rankings.append(semantic.Ranking(f.quantity, f.ref["extreme"], f.entity))
+            rankings.append(semantic.rank_fact(f.quantity, f.ref["extreme"], f.entity))
     return values, rankings
 
 
-def check_answer(text: str, facts: list[ChatFact]) -> list[semantic.Problem]:
+def check_answer(text: str, facts: list[ChatFact]) -> list[Claim]:
     """The semantic guard on an answer: quoted text (alerts, explanations) is cited verbatim and skipped."""
     values, rankings = guard_data(facts)
     plain = _QUOTED.sub("“”", text)
@@ -114,7 +115,8 @@ def check_answer(text: str, facts: list[ChatFact]) -> list[semantic.Problem]:
         if isinstance(f.value, str) and f.value:
             plain = plain.replace(f.value, "“”")
     problems = semantic.check(plain, values, rankings)
-    return problems + [semantic.Problem("unbound_number", n, "no fact holds this number")
+    return problems + [Claim("equals", n, extra={"reason": "no_value"}).fails_claim("ungrounded_number",
+                                                                                  "no fact holds this number")
                        for n in ungrounded_numbers(text, facts) if not problems]  # fmt: skip
 
 
@@ -429,7 +431,7 @@ class ChatEngine:
             rephrased_problems = check_answer(text, facts)
             if rephrased_problems:
                 self.rejected_phrasings += 1
-                text, by, note = draft, "template", f"rephrasing refused: {rephrased_problems[0].detail}"
+                text, by, note = draft, "template", f"rephrasing refused: {rephrased_problems[0].flag.detail}"
         return self._reply(text, facts, plan, proposed=proposed, grounded=not (problems or failed),
                            phrased_by=by, note=note, problems=problems, lang=lang)  # fmt: skip
 
@@ -457,7 +459,8 @@ class ChatEngine:
             "refused": refused,
             "declined": bool(declined),  # the question asks for something this answer does not give
             "missing": list(declined or []),
-            "problems": [p.__dict__ for p in problems or []],
+            "problems": [{"kind": p.flag.kind, "span": p.text, "detail": p.flag.detail} for p in problems or []
+                         if p.flag is not None],
             "lang": lang,
         }
 

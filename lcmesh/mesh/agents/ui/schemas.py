@@ -421,7 +421,9 @@ class ChatToolCall(BaseModel):
 
 
 class ChatProblem(BaseModel):
-    kind: str = Field(description="unbound_number, wrong_entity, wrong_quantity, wrong_rank or wrong_direction")
+    kind: str = Field(description="ungrounded_number (a number no fact holds, or given for the wrong entity or "
+                                  "quantity), wrong_ranking or wrong_direction: the flag names of every check "
+                                  "(lcmesh.mesh.tools.claims.FLAG_KINDS)")
     span: str
     detail: str
 

@@ -20,6 +20,7 @@ import re
 from dataclasses import dataclass, field
 
 from lcmesh.mesh.tools import vocab
+from lcmesh.mesh.tools.claims import Claim
 
 K0 = 273.15
 PSI_TO_PA = 6894.757
@@ -73,6 +74,12 @@ class NumberMention:
     def half_ulp(self) -> float:
         """Half a unit in the last stated digit, in the stated unit."""
         return 0.5 * 10.0 ** (-self.decimals)
+
+
+def read_numbers(text: str) -> list[Claim]:
+    """The measurements of ``text`` as claims that each equals some value (not yet checked), with their readings."""
+    return [Claim("equals", m.text, m.start, m.end, value=m.value, unit=m.unit, readings=tuple(m.interpretations))
+            for m in extract_numbers(text) if m.role == "measure"]  # fmt: skip
 
 
 def extract_numbers(text: str) -> list[NumberMention]:
