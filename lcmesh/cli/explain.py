@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from lcmesh.cli.common import (
@@ -32,8 +33,12 @@ def explain_eval(
     config: Annotated[
         Optional[Path], typer.Option(help="JSON file with EvalConfig fields (tolerances, bounds)")
     ] = None,
+    per_text: Annotated[
+        bool, typer.Option("--per-text/--summary-only", help="print each text's claims, verdicts and flags")
+    ] = True,
 ) -> None:
-    """Score explanations from any system: numeric grounding, coverage, direction, ranking, bounds, physics."""
+    """Score explanations from any system: each text's claims (numbers, directions, rankings, causes, bounds, the
+    action's dimensions) checked against its decision's facts, its flags, and a summary."""
     from pydantic import ValidationError
 
     from lcmesh.mesh.tools.explain_eval import EvalConfig, evaluate_file, render_markdown
@@ -54,12 +59,18 @@ def explain_eval(
             f"`{'.'.join(map(str, e['loc']))}`: {e['msg']}" for e in exc.errors()))  # fmt: skip
     result = evaluate_file(input_path, cfg)
     agg = result["aggregate"]
-    table = Table(title=f"explain-eval: {input_path.name} ({agg['n_items']} items, {agg['n_invalid']} invalid)")
+    if per_text:
+        for item in result["items"]:
+            _print_item(item)
+    table = Table(title=f"explain-eval: {input_path.name} ({agg['n_items']} items, {agg['n_invalid']} invalid, "
+                        f"{agg['n_not_read']} not read)")  # fmt: skip
     for column in ("score", "mean", "min"):
         table.add_column(column)
     for key in ("numeric_grounding", "coverage", "direction_consistency"):
         table.add_row(key, f"{agg[key]:.3f}", f"{agg[key + '_min']:.3f}")
     console.print(table)
+    console.print(f"texts without flags: {agg['items_without_flags']} of {agg['n_valid']} read; claims checked "
+                  f"{agg['claims_checked']}, failed {agg['claims_failed']}")
     if agg["flag_counts"]:
         console.print("flags: " + ", ".join(f"{k} {v}" for k, v in agg["flag_counts"].items()))
     if markdown is not None:
@@ -67,6 +78,26 @@ def explain_eval(
         markdown.write_text(render_markdown(result, title=f"Explanation evaluation: {input_path.name}"))
         console.print(f"wrote {markdown}")
     write_json(json_out, result)
+
+
+_MARK = {"holds": "[green]ok[/green]", "fails": "[red]FAIL[/red]", "unchecked": "[dim]?[/dim]"}
+
+
+def _print_item(item: dict) -> None:
+    """One text: its verdict, each claim it read with the fact it was checked against, then its flags."""
+    kinds = sorted({f["kind"] for f in item["flags"]})
+    if "not_read" in kinds or "invalid_record" in kinds:
+        verdict = "[yellow]not read[/yellow]" if "not_read" in kinds else "[red]invalid record[/red]"
+    else:
+        verdict = f"[red]flagged: {', '.join(kinds)}[/red]" if kinds else "[green]no flags[/green]"
+    lang = f" ({item['language']})" if item.get("language") else ""
+    console.print(f"[bold]{escape(item['id'])}[/bold]{lang}: {verdict}")
+    for c in item.get("claims", []):
+        said = c["text"] if len(c["text"]) <= 90 else c["text"][:87] + "..."
+        against = f" <- {c['fact']}" if c.get("fact") else ""
+        console.print(f"  {_MARK[c['verdict']]} {c['relation']:7s} {escape(said)}{escape(against)}", soft_wrap=True)
+    for f in item["flags"]:
+        console.print(f"  [red]{f['kind']}[/red]: {escape(f['detail'])}", soft_wrap=True)
 
 
 @app.command("explain-twin")

@@ -140,6 +140,9 @@ def test_cli_writes_json_and_markdown(tmp_path):
         assert {"id", "numeric_grounding", "coverage", "direction_consistency", "flags"} <= set(item)
         assert all(0.0 <= item[k] <= 1.0 for k in ("numeric_grounding", "coverage", "direction_consistency"))
     assert "| flaw-13-physics-supply |" in md.read_text() and "**physics**" in md.read_text()
+    # per text: its verdict, each claim read with what it was checked against, its flags; then the summary
+    assert "good-01-prose (en): no flags" in res.output and "ok equals  38.5 °C <- branch 2" in res.output
+    assert "not-read-01-finnish: not read" in res.output and "not read)" in res.output
 
 
 def test_cli_reports_bad_arguments(tmp_path):
@@ -275,3 +278,48 @@ def test_the_judge_reads_the_guards_direction_words(lang):
             item = _dev(MOVED, f"{subject} {word} 25.0 °C.")
             assert item["directions"]["checked"] == 1, word
             assert item["directions"]["consistent"] == (pol == "up"), word
+
+
+def _record(text: str) -> dict:
+    """A three-branch decision with equal valves held, the supply setpoint raised 0.1 K, dp and tower held."""
+    return {"id": "r", "observation": {"blade_temp_k": [304.3, 303.75, 304.37], "blade_power_w": [105300, 78600, 103600],
+                                       "wet_bulb_k": 277.6},
+            "action": {"valve_fractions": [1 / 3, 1 / 3, 1 / 3], "supply_temp_setpoint_c": 29.6, "dp_psi": 27.5,
+                       "ct_action": {"lw_setpoint_c": 25.5}},
+            "previous_action": {"valve_fractions": [1 / 3, 1 / 3, 1 / 3], "supply_temp_setpoint_c": 29.5,
+                                "dp_psi": 27.5, "ct_action": {"lw_setpoint_c": 25.5}},
+            "explanation": text}  # fmt: skip
+
+
+@pytest.mark.parametrize("text", [
+    "armario 5: válvulas 1/3, impulsión sube a 29,6 °C, dp 27,5 psi, torre 25,5 °C. la rama 3 es la más caliente.",
+    "Schrank 5: Ventile je 0,333, Vorlauf-Soll auf 29,6 °C angehoben, Δp 27,5 psi gehalten, Turm-Soll 25,5 °C gehalten.",
+    "armoire 5 : vannes à un tiers chacune, soufflage relevé à 29,6 °C. Δp 27,5 psi et consigne tour 25,5 °C inchangées.",
+])  # fmt: skip
+def test_terse_es_de_fr_texts_are_read(text):
+    """Decimal commas by the text's language ("0,333" is a third, not 333), equal splits as thirds, lower-case
+    sentences and the short names operators give the supply and tower setpoints."""
+    item = evaluate_record(_record(text))
+    assert item["flags"] == [] and item["coverage"] == 1.0, item["flags"]
+    assert all(c["verdict"] == "holds" for c in item["claims"])
+
+
+def test_a_setpoint_out_of_range_is_flagged_once():
+    """A failed claim carries one flag: a supply setpoint given as 16 °C is out_of_bounds, not also ungrounded."""
+    item = evaluate_record(_record("Valves held at 1/3 each, supply setpoint held at 16.0 °C, dp 27.5 psi held, "
+                                   "tower setpoint 25.5 °C held."))  # fmt: skip
+    assert sorted({f["kind"] for f in item["flags"]}) == ["out_of_bounds", "wrong_direction"] or \
+        sorted({f["kind"] for f in item["flags"]}) == ["out_of_bounds"], item["flags"]
+    bound = [c for c in item["claims"] if c["relation"] == "bound"]
+    assert bound and bound[0]["verdict"] == "fails" and bound[0]["flag"] == "out_of_bounds"
+
+
+def test_the_three_checks_share_one_set_of_flag_names():
+    """The chat's guard and the judge name a flaw the same way (claims.FLAG_KINDS)."""
+    from lcmesh.mesh.tools.claims import FLAG_KINDS as SHARED
+    from lcmesh.mesh.tools.semantic import check, rank_fact, value_fact
+
+    facts = [value_fact("37.7", "cabinet 5", "blade_temp"), value_fact("36.6", "cabinet 2", "blade_temp")]
+    failed = check("Cabinet 2 runs hottest at 37.7 °C; the wet bulb is 9.9 °C.", facts,
+                   [rank_fact("blade_temp", "highest", "cabinet 5")])  # fmt: skip
+    assert failed and {c.flag.kind for c in failed} <= set(SHARED) and FLAG_KINDS == SHARED

@@ -109,14 +109,24 @@ def test_one_corpus_record_is_a_valid_explain_eval_line():
     assert CORPUS.is_dir()
 
 
-def test_the_new_test_part_meets_its_brief():
-    """Issue 35's new test part (a third outside author): >= 300 texts on test decisions only, every judged flag
-    kind planted >= 20 times, >= 40 % in es/de/fr, one planted flaw per flawed text."""
+@pytest.mark.parametrize("name", ["fresh2.jsonl", "fresh3.jsonl"])
+def test_the_new_test_parts_meet_their_brief(name):
+    """Issue 35's test parts by outside authors (fresh2: a third author; fresh3: two more, written before the judge
+    was tuned for the issue): >= 300 texts on test decisions only, every judged flag kind planted >= 20 times, >= 40 %
+    in es/de/fr, one planted flaw per flawed text."""
     records, _ = load_corpus()
-    part = load_fresh(name="fresh2.jsonl")
+    part = load_fresh(name=name)
     assert len(part) >= 300 and len({t["id"] for t in part}) == len(part)
     assert {records[t["record_key"]]["split"] for t in part} == {"test"}
-    planted = Counter(t["error"] for t in part if not t["correct"])
+    planted = Counter(k for t in part for k in t["expected_flags"])
     assert all(planted[kind] >= 20 for kind in JUDGED_KINDS), planted
-    assert all(t["expected_flags"] == ([] if t["correct"] else [t["error"]]) for t in part)
+    assert all(len(t["expected_flags"]) == (0 if t["correct"] else 1) for t in part)
     assert sum(t["lang"] in ("es", "de", "fr") for t in part) >= 0.4 * len(part)
+
+
+def test_the_tuning_part_is_on_dev_decisions_by_other_authors():
+    """dev3 (what the judge was tuned on for issue 35) is on dev decisions only, by authors who wrote no test part."""
+    records, _ = load_corpus()
+    dev3, fresh3 = load_fresh(name="dev3.jsonl"), load_fresh(name="fresh3.jsonl")
+    assert {records[t["record_key"]]["split"] for t in dev3} == {"dev"}
+    assert not {t["source"] for t in dev3} & {t["source"] for t in fresh3}

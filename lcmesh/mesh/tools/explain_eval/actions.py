@@ -329,6 +329,11 @@ def direction_claims(
     return [(dim, pol, clause.start + pos) for dim, (_, pol, pos, _) in best.items()]
 
 
+# a list of settings separated by commas, bullets or "and": a direction word belongs to its own item
+_SEGMENT_BREAK = re.compile(r"[,;·|(]|\)|\b(?:and|und|y|et|e|sowie)\b", re.IGNORECASE)
+_ACROSS_BREAK = 4
+
+
 def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:
     """Give a direction word to the nearest dimension on its side, at most 6 words away and not past the fans, pumps
     or blades an effect is said of; in a clause about one branch, its valve takes the word at that limit ("Branch 1,
@@ -344,6 +349,8 @@ def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False)
             continue
         if tx.EFFECT_SUBJECT.search(text, *gap):
             continue  # "the setpoint lets the tower fans ease off": the fans' direction
+        if _SEGMENT_BREAK.search(text, *gap):
+            dist += _ACROSS_BREAK  # "Vorlauf-Soll auf 29,6 °C angehoben, Δp 27,5 psi": the word closes its segment
         candidates.append((dist if far is None else min(dist, far), name, d0))
     if not candidates:
         return

@@ -222,7 +222,7 @@ _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
 _LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[a-zà-öø-ÿ])")
 _ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|e\.g|i\.e|z\.\s?b|"
                            r"u\.\s?a|d\.\s?h|p\.\s?ej|c\.-à-d)\.)$", I)
-_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔ\"'(\[*•¿¡-])")
+_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔΔ\"'(\[*•¿¡-])")
 _AND = vocab.alternation(*function_words("and"))
 _BRANCH_WORDS = vocab.alternation(*(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))
 _CLAUSE_SPLIT = re.compile(
@@ -297,6 +297,7 @@ def _clauses(sentence: str, offset: int) -> list[Clause]:
 _JOIN = vocab.alternation(r",\s*" + _AND, ",", _AND, *function_words("or"), "&", "/", "to", "through", "-", "–")
 _NUM_LIST = r"\d+" + vocab.NOT_A_VALUE + r"(?:\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE + r")*"
 _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I)
+_SHARE_FRACTION = re.compile(r"1/[2-9]")
 _LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&)\s*" + vocab.ARTICLE + "?", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
 _ORDINALS = {"first": 1, "second": 2, "third": 3, "fourth": 4, "fifth": 5, "sixth": 6, "seventh": 7, "eighth": 8}
@@ -308,6 +309,8 @@ def branch_mentions(text: str) -> list[BranchMention]:
     found = []
     g, previous_end = -1, None
     for m in _BRANCH.finditer(text):
+        if _SHARE_FRACTION.fullmatch(m.group("nums")):
+            continue  # "valves 1/3" is a third each, not valves 1 and 3
         # "branch 1 and branch 3 were held at 0.37 and 0.37" is one list, like "branches 1 and 3"
         if previous_end is None or not _LIST_JOIN.fullmatch(text, previous_end, m.start()):
             g += 1
