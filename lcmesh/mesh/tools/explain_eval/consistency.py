@@ -18,6 +18,7 @@ import re
 import numpy as np
 
 from lcmesh.mesh.tools.explain_eval import text as tx
+from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.claims import Flag
 from lcmesh.mesh.tools.explain_eval.actions import Context, direction_claims
 from lcmesh.mesh.tools.explain_eval.grounding import _CLAUSE_END, DIFF_CUE, _topic_of
@@ -390,8 +391,9 @@ def _stated_valves(ctx: Context) -> list[Flag]:
     return [ctx.fail("bound", "out_of_bounds", f"the valve fractions the text gives ({shown}) sum to more than 1")]
 
 
-_COUNT_WORDS = {"two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8}
-_BRANCH_COUNT = re.compile(r"(?<![\d.,])\b(?P<n>\d+|" + "|".join(_COUNT_WORDS) + r")\s+branches\b", re.I)
+_COUNT_WORDS = vocab.COUNT_WORDS
+_BRANCH_COUNT = re.compile(r"(?<![\d.,])\b(?P<n>\d+|" + "|".join(_COUNT_WORDS) + r")\s+"
+                           r"(?:branches|ramas|zweige|str[äa]nge|blade[\s-]groups|grupos)\b", re.I)  # fmt: skip
 
 
 def _stated_branch_count(ctx: Context) -> list[Flag]:

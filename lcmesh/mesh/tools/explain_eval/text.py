@@ -143,8 +143,9 @@ def _flatten_json(text: str) -> str:
 
 # "la branche la plus chaude est la 2", "la más cargada es la 3": the number after "es/est/ist la" names a branch
 # when the sentence has named branches before it
-_IS_THE_N = re.compile(r"\b(?:es|est|ist)\s+(?:la|el|le|der|die)\s+(?=\d+\b(?![.,]\d))", I)
-_BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?|branches?|branch)\b", I)
+_IS_THE_N = re.compile(r"\b(?:es|est|ist)\s+(?:la|el|le|der|die)\s+(?=\d+\b(?![.,]\d))"
+                       r"|(?<![\w.,])(?:la|el|le|der|die)\s+(?=\d\b(?![.,]\d)\s*(?:es|est|ist|,|\())", I)
+_BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s?)\b", I)
 
 
 def _is_the_branch(line: str) -> str:
@@ -300,8 +301,21 @@ _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + 
 _SHARE_FRACTION = re.compile(r"1/[2-9]")
 _LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&)\s*" + vocab.ARTICLE + "?", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
-_ORDINALS = {"first": 1, "second": 2, "third": 3, "fourth": 4, "fifth": 5, "sixth": 6, "seventh": 7, "eighth": 8}
-_BRANCH_ORDINAL = re.compile(r"\b(?P<ord>" + "|".join(_ORDINALS) + r")\s+(?:branch|blade[- ]group|group|valve)\b", I)
+_ORDINALS = vocab.ORDINAL_WORDS
+_ORD = "|".join(sorted(_ORDINALS, key=len, reverse=True))
+_ONE_BRANCH = vocab.alternation(r"branch", r"blade[- ]group", "group", "valve", "rama", "zweige?s?", "strang",
+                                "branche", "vanne", "válvula", "ventil")
+# "the third branch", "la tercera rama", "der dritte Zweig"; after a branch word in its sentence, an ordinal with its
+# article alone ("deja la primera en 0,324", "la troisième, avec 2,7 kW") or before "es/est/ist" names a branch too
+_BRANCH_ORDINAL = re.compile(r"\b(?P<ord>" + _ORD + r")\s+" + _ONE_BRANCH + r"\b"
+                             r"|\b(?:la|el|le|der|die|das|the)\s+(?P<ord2>" + _ORD + r")\b(?!\s+\w*(?:stunde|hora|heure|"
+                             r"hour|step|paso|schritt|pas|tiers|tercio|drittel|third|half|mitad|moitié|quart|cuarto|"
+                             r"viertel|quarter))", I)  # fmt: skip
+
+
+def _sentence_end(text: str, pos: int) -> int:
+    end = text.find(". ", pos)
+    return len(text) if end < 0 else end
 
 
 def branch_mentions(text: str) -> list[BranchMention]:
@@ -319,8 +333,11 @@ def branch_mentions(text: str) -> list[BranchMention]:
             start = m.start() if n.start() == 0 else m.start("nums") + n.start()
             found.append(BranchMention(start, m.start("nums") + n.end(), int(n.group()), group=g))
     found += [BranchMention(m.start(), m.end(), int(m.group("num"))) for m in _BRANCH_SHORT.finditer(text)]
-    found += [BranchMention(m.start(), m.end(), _ORDINALS[m.group("ord").lower()], True)
-              for m in _BRANCH_ORDINAL.finditer(text)]  # fmt: skip
+    for m in _BRANCH_ORDINAL.finditer(text):
+        if m.group("ord"):
+            found.append(BranchMention(m.start(), m.end(), _ORDINALS[m.group("ord").lower()], True))
+        elif _BRANCH_WORD.search(text, max(text.rfind(". ", 0, m.start()), 0), _sentence_end(text, m.end())):
+            found.append(BranchMention(m.start("ord2"), m.end(), _ORDINALS[m.group("ord2").lower()], True))
     found.sort(key=lambda b: b.start)
     return found
 
