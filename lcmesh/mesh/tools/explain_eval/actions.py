@@ -165,7 +165,7 @@ def _valves_covered(ctx: Context) -> set[int]:
         if not has_valve_word:
             continue
         fractions = [m for m in ctx.numbers_in(s.start, s.end) if any(q == "fraction" for q, _, _ in m.interpretations)]
-        if _in_order(ctx, fractions, valves):
+        if _in_order(ctx, fractions, valves) or _valve_list(ctx, s, fractions, valves.size):
             covered.update(range(valves.size))
         equal = float(np.ptp(valves)) < 0.01
         if equal and (tx.EQUAL_SPLIT.search(s.text) or (tx.EACH.search(s.text) and fractions
@@ -174,6 +174,21 @@ def _valves_covered(ctx: Context) -> set[int]:
             scope = [b for b in mentions if _SCOPE_BEFORE.search(ctx.rec.text, max(0, b.start - 12), b.start)]
             covered.update({ctx.entity(b) for b in scope} if scope else range(valves.size))  # fmt: skip
     return covered
+
+
+_LIST_JOIN = re.compile(r"\s*(?:/|,|;|-|–|\band\b|\by\b|\bund\b|\bet\b|\be\b)\s*", re.IGNORECASE)
+
+
+def _valve_list(ctx: Context, s: tx.Sentence, fractions: list, n: int) -> bool:
+    """A valve sentence listing one bare fraction per branch in a row ("Ventile 0,69 / 0,053 / 0,169"): it states the
+    split (grounding and the bounds judge its values)."""
+    text = ctx.rec.text
+    bare = [m for m in fractions if m.unit == "" and m.decimals >= 1 and 0 <= m.value <= 1]
+    for k in range(len(bare) - n + 1):
+        run = bare[k : k + n]
+        if all(_LIST_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
+            return True
+    return False
 
 
 _SCOPE_BEFORE = re.compile(r"\b(?:for|across|between|among)\s+(?:the\s+)?$", re.I)

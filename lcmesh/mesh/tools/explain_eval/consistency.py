@@ -314,6 +314,11 @@ def _stated_setpoints(ctx: Context) -> list[Flag]:
                                                f"{wet_bulb_c:.1f} °C wet bulb"))  # fmt: skip
             elif topic in ("supply_setpoint", "lw_setpoint"):
                 ctx.claim("bound", quote, quantity=topic, value=c, unit="degC").holds("the plant's limits")
+        elif m.unit and m.unit not in ("", "%") and any(q == "flow" for q, _, _ in m.interpretations):
+            kg_s = next(x for q, x, _ in m.interpretations if q == "flow")
+            lo, hi = b.flow_kg_s
+            if not lo < kg_s <= hi * (1 + 1e-9) + m.half_ulp:
+                flags.append(_stated(ctx, m, f"'{quote}' is given as a flow, outside ({lo:g}, {hi:g}] kg/s"))
         elif any(q == "pressure" for q, _, _ in m.interpretations) and m.unit:
             psi = next(x for q, x, _ in m.interpretations if q == "pressure") / PSI_TO_PA
             names = list(tx.DP.finditer(_clause_before(ctx, m.start)))
@@ -372,8 +377,8 @@ def _stated_valves(ctx: Context) -> list[Flag]:
             if len(run) == n and not ctx.branches_in(c.start, c.end) and all(
                     _FRACTION_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
                 if sum(m.value for m in run) > 1.0 + tol:  # one list, one split
-                    return [ctx.fail("bound", "out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' sum to "
-                                              "more than 1")]
+                    return [ctx.fail("bound", "out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' "
+                                     "sum to more than 1", start=run[0].start, end=run[-1].end)]
         for bm in ctx.branches_in(s.start, s.end):
             j = ctx.entity(bm)
             if bm.group >= 0 and sum(x.group == bm.group for x in ctx.branches) > 1 or not 0 <= j < n:

@@ -65,8 +65,10 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
     later = coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx)
     # a claim fails once, with its most specific flag: a setpoint the text gives outside the plant's range is
     # out_of_bounds, not also an ungrounded number
-    out_of_range = {c.start for c in ctx.claims if c.relation == "bound" and c.verdict == "fails" and c.start >= 0}
-    flags = [c.flag for c in grounding.claims if c.flag is not None and c.start not in out_of_range] + later
+    out_of_range = [(c.start, max(c.end, c.start + 1)) for c in ctx.claims
+                    if c.relation == "bound" and c.verdict == "fails" and c.start >= 0]  # fmt: skip
+    flags = [c.flag for c in grounding.claims if c.flag is not None
+             and not any(a <= c.start < z for a, z in out_of_range)] + later  # fmt: skip
     if rec.level is not None:
         found = {s.section for s in ctx.sentences} | _headings(rec.text)
         flags += [Flag("missing_section", f"the {rec.level} level needs a '{h}' section")
