@@ -229,6 +229,9 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "innerhalb des": ("in_band", "inside", "total", "band_low", "band_high"), "energie": _ENERGY,
     "vorlauf-soll": ("supply_setpoint", "supply"), "vorlaufsoll": ("supply_setpoint", "supply"),
     "vl-soll": ("supply_setpoint", "supply"), "kt-soll": ("lw_setpoint", "lw"), "kt-austritt": ("lw_setpoint", "lw"),
+    "vl ": ("supply_setpoint", "supply"), "kt ": ("lw_setpoint", "lw"), "kühlturm-soll": ("lw_setpoint", "lw"),
+    "austrittssollwert": ("lw_setpoint", "lw"), "turm-austritt": ("lw_setpoint", "lw"),
+    "austritt-soll": ("lw_setpoint", "lw"),
     "turm-soll": ("lw_setpoint", "lw"), "turmsoll": ("lw_setpoint", "lw"), "kühlturm": ("leaving_water", "lw"),
     "turmaustritt": ("leaving_water", "lw_setpoint", "lw"), "austritt": ("leaving_water", "lw_setpoint", "lw"),
     # fr
@@ -250,6 +253,8 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "soufflage": ("supply_temp", "supply_setpoint", "supply"), "consigne de soufflage": ("supply_setpoint", "supply"),
     "eau sortie": ("leaving_water", "lw_setpoint", "lw"), "sortie de tour": ("leaving_water", "lw_setpoint", "lw"),
     "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "consigne tour": ("lw_setpoint", "lw"),
+    "consigne d'eau sortie": ("lw_setpoint", "lw"), "consigne de sortie": ("lw_setpoint", "lw"),
+    "consigne de sortie de tour": ("lw_setpoint", "lw"), "consigne départ": ("supply_setpoint", "supply"),
 }  # fmt: skip
 QUANTITY = re.compile("|".join(re.escape(w) for w in sorted(QUANTITY_WORDS, key=len, reverse=True)), I)
 

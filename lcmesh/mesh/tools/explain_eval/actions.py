@@ -168,14 +168,17 @@ def _valves_covered(ctx: Context) -> set[int]:
         if _in_order(ctx, fractions, valves) or _valve_list(ctx, s, fractions, valves.size):
             covered.update(range(valves.size))
         equal = float(np.ptp(valves)) < 0.01
-        if equal and (tx.EQUAL_SPLIT.search(s.text) or (tx.EACH.search(s.text) and fractions
-                                                         and ctx.matches(fractions[0], "fraction", valves[0]))):
+        one_share = bool(fractions) and all(ctx.matches(m, "fraction", valves[0]) for m in fractions) \
+            and bool(_PLURAL_VALVES.search(s.text)) and not mentions  # "les trois vannes restent à 33 %"
+        if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and fractions
+                                                                     and ctx.matches(fractions[0], "fraction", valves[0]))):
             # "split evenly for branch 1 and branch 3" explains those two; with no branches named its scope, every one
             scope = [b for b in mentions if _SCOPE_BEFORE.search(ctx.rec.text, max(0, b.start - 12), b.start)]
             covered.update({ctx.entity(b) for b in scope} if scope else range(valves.size))  # fmt: skip
     return covered
 
 
+_PLURAL_VALVES = re.compile(r"\b(?:valves|válvulas|ventile|vannes)\b", re.IGNORECASE)
 _LIST_JOIN = re.compile(r"\s*(?:/|,|;|-|–|\band\b|\by\b|\bund\b|\bet\b|\be\b)\s*", re.IGNORECASE)
 
 
@@ -346,7 +349,6 @@ def direction_claims(
 
 # a list of settings separated by commas, bullets or "and": a direction word belongs to its own item
 _SEGMENT_BREAK = re.compile(r"[,;·|(]|\)|\b(?:and|und|y|et|e|sowie)\b", re.IGNORECASE)
-_ACROSS_BREAK = 4
 
 
 def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:
@@ -364,12 +366,12 @@ def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False)
             continue
         if tx.EFFECT_SUBJECT.search(text, *gap):
             continue  # "the setpoint lets the tower fans ease off": the fans' direction
-        if _SEGMENT_BREAK.search(text, *gap):
-            dist += _ACROSS_BREAK  # "Vorlauf-Soll auf 29,6 °C angehoben, Δp 27,5 psi": the word closes its segment
-        candidates.append((dist if far is None else min(dist, far), name, d0))
+        # "Vorlauf-Soll auf 29,6 °C angehoben, Δp 27,5 psi": the word belongs to its own list item first
+        across = bool(_SEGMENT_BREAK.search(text, *gap))
+        candidates.append((across, dist if far is None else min(dist, far), name, d0))
     if not candidates:
         return
-    dist, name, d0 = min(candidates)
+    _, dist, name, d0 = min(candidates)
     if dist <= 6 and (name not in best or dist < best[name][0]):
         best[name] = (dist, pol, w0, d0)
 
@@ -382,6 +384,8 @@ def check_direction(ctx: Context) -> tuple[int, int, list[Flag]]:
         if "RECOMMENDATION" in s.section:
             continue
         valve_context = bool(tx.VALVE.search(s.text)) or "VALVE" in s.heading
+        if s.text.rstrip().endswith("?"):
+            continue  # a question ("why not give it more flow?") claims nothing about the action
         for clause in s.clauses:
             if clause.hypothetical:
                 continue

@@ -25,7 +25,10 @@ from lcmesh.mesh.tools.explain_eval.record import EvalConfig, Record
 
 DIFF_CUE = re.compile(
     r"\b(?:above|below|than|warmer|hotter|cooler|colder|higher|lower|more|less|difference|differ\w*|spread|spans?"
-    r"|gap|margin|apart|delta|approach|between|exceed\w*|short of|beyond|inside|outside|headroom)\b|Δ",
+    r"|gap|margin|apart|delta|approach|between|exceed\w*|short of|beyond|inside|outside|headroom"
+    # es / de / fr
+    r"|margen|marge|abstand|reserve|diferencia|differenz|unterschied|écart|sous|unter|über|debajo|encima|au-dessus"
+    r"|en\s+dessous|por\s+debajo|por\s+encima|más\s+que|menos\s+que|plus\s+que|moins\s+que|hasta|bis|jusqu)\b|Δ",
     re.IGNORECASE,
 )
 SUM_CUE = re.compile(
@@ -204,12 +207,14 @@ _TOPIC_NAMES = re.compile(
     r"|limit|band|edge|ceiling|floor|threshold|bound|nears?"
     # the same names in es / de / fr
     r"|medid[oa]s?|gemessen\w*|mesurée?s?|retorno|rücklauf\w*|retour|impulsión|vorlauf\w*|départ|agua\s+de\s+salida"
-    r"|austrittswasser\w*|eau\s+de\s+sortie|ramas?|zweig\w*|branches?|banda|bande|límite|grenze|limite)",
+    r"|austrittswasser\w*|eau\s+de\s+sortie|ramas?|zweig\w*|branches?|banda|bande|límite|grenze|limite"
+    r"|\bist\b|\breal\b|\bréel\w*|\bmesure\b|\bactual\b|\bmedición\b)",
     re.IGNORECASE,
 )
 
 
 _CLAUSE_END = re.compile(r"[.!?](?=\s)|[;|\n]")
+_LIST_ITEM_END = re.compile(r",\s|·|\s[–—-]\s")
 
 
 def _topic_of(text: str, m: NumberMention) -> str | None:
@@ -219,6 +224,9 @@ def _topic_of(text: str, m: NumberMention) -> str | None:
         return after.lastgroup if after.lastgroup != "other" else None
     breaks = [b.end() for b in _CLAUSE_END.finditer(text, 0, m.start)]
     before = text[breaks[-1] if breaks else 0 : m.start]
+    item = [b.end() for b in _LIST_ITEM_END.finditer(before)]  # "Vorlauf-Soll 30,0 °C, Turm-Soll 29,4 °C": each its own
+    if item and _TOPIC_NAMES.search(before, item[-1]):
+        before = before[item[-1] :]
     names = list(_TOPIC_NAMES.finditer(before))
     if not names:
         return None

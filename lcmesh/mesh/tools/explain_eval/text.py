@@ -299,6 +299,9 @@ _JOIN = vocab.alternation(r",\s*" + _AND, ",", _AND, *function_words("or"), "&",
 _NUM_LIST = r"\d+" + vocab.NOT_A_VALUE + r"(?:\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE + r")*"
 _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I)
 _SHARE_FRACTION = re.compile(r"1/[2-9]")
+_PERCENT_AFTER = re.compile(r"\s*(?:%|por\s*ciento|prozent|pour\s*cent)", I)
+# "V1=0,333", "V2 zu", "br. 3", "Br.2": a valve's or a branch's short name (a mention of that branch)
+_VALVE_SHORT = re.compile(r"\b(?:V|br\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
 _LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&)\s*" + vocab.ARTICLE + "?", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
 _ORDINALS = vocab.ORDINAL_WORDS
@@ -323,8 +326,8 @@ def branch_mentions(text: str) -> list[BranchMention]:
     found = []
     g, previous_end = -1, None
     for m in _BRANCH.finditer(text):
-        if _SHARE_FRACTION.fullmatch(m.group("nums")):
-            continue  # "valves 1/3" is a third each, not valves 1 and 3
+        if _SHARE_FRACTION.fullmatch(m.group("nums")) or _PERCENT_AFTER.match(text, m.end()):
+            continue  # "valves 1/3" is a third each, "válvulas 33/33/33 %" shares: not valves 1 and 3
         # "branch 1 and branch 3 were held at 0.37 and 0.37" is one list, like "branches 1 and 3"
         if previous_end is None or not _LIST_JOIN.fullmatch(text, previous_end, m.start()):
             g += 1
@@ -333,6 +336,7 @@ def branch_mentions(text: str) -> list[BranchMention]:
             start = m.start() if n.start() == 0 else m.start("nums") + n.start()
             found.append(BranchMention(start, m.start("nums") + n.end(), int(n.group()), group=g))
     found += [BranchMention(m.start(), m.end(), int(m.group("num"))) for m in _BRANCH_SHORT.finditer(text)]
+    found += [BranchMention(m.start(), m.end(), int(m.group("num"))) for m in _VALVE_SHORT.finditer(text)]
     for m in _BRANCH_ORDINAL.finditer(text):
         if m.group("ord"):
             found.append(BranchMention(m.start(), m.end(), _ORDINALS[m.group("ord").lower()], True))
