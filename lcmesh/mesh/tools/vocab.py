@@ -315,6 +315,8 @@ VALVE_WORDS = {
 # es / de / fr tower words that name its setpoint
 TOWER_SETPOINT_WORDS = (r"consigna\s+de\s+(?:la\s+)?torre", r"turm-?sollwert", r"sollwert\s+des\s+turms",
                         r"consigne\s+de\s+(?:la\s+)?tour", r"consigne\s+d['’]eau\s+(?:sortant|de\s+sortie)")  # fmt: skip
+_NOT_TOWER_FANS = (r"(?![\s-]+(?:de\s+(?:la\s+)?)?(?:fans?|ventilador\w*|lüfter\w*|ventilateur\w*|power|potencia|"
+                   r"leistung|puissance|energ\w*))")
 _TOWER_NAMES = tuple(w for lang in ("es", "de", "fr") for w in ENTITY_WORDS["tower"][lang])
 
 
@@ -339,7 +341,9 @@ def dimension(name: str, setpoint: bool = False) -> re.Pattern:
     if name == "valve":
         others += tuple(r"\b" + w + r"\b" for w in _all(VALVE_WORDS))
     if name == "tower":
-        others += TOWER_SETPOINT_WORDS + (() if setpoint else tuple(r"\b" + w + r"\b" for w in _TOWER_NAMES))
+        # the bare tower word names its setpoint too ("torre sube a 29,0 °C"), not its fans or power
+        others += TOWER_SETPOINT_WORDS + tuple(r"\b" + w + r"\b" + (_NOT_TOWER_FANS if setpoint else "")
+                                               for w in _TOWER_NAMES)
     return re.compile("|".join(english) + "|" + alternation(*others), I)  # English first, as it was tuned
 
 

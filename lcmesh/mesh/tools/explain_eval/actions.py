@@ -159,7 +159,13 @@ def _valves_covered(ctx: Context) -> set[int]:
             share = any(m.unit == "%" for m in cited)  # "branch 2 gets 41 %": a share of the flow
             talks = tx.VALVE.search(span) and (tx.ANY_DIRECTION.search(span) or tx.EQUAL_SPLIT.search(span))
             exact = any(m.unit == "" and m.decimals >= 2 for m in cited)  # "branche 3 passe de 0,388 à 0,373"
-            if (cited and (has_valve_word or previous_valves or exact or tx.VALVE.search(span))) or share or talks:
+            # a valve sentence that gives branch j a fraction or a move states its valve, right or wrong (grounding
+            # and the direction check judge it): "la rama 3 se abre hasta 0,59", "Ventil Zweig 1 | 1,36 | 0,355"
+            stated = (has_valve_word or previous_valves) and (
+                any(m.unit in ("", "%") and 0 <= m.value <= (100 if m.unit == "%" else 1.5) and (m.decimals or m.unit)
+                    for m in ctx.numbers_in(a, z)) or tx.ANY_DIRECTION.search(span))  # fmt: skip
+            if (cited and (has_valve_word or previous_valves or exact or tx.VALVE.search(span))) or share or talks \
+                    or stated:
                 covered.add(j)
         previous_valves = has_valve_word or len(covered) > before_sentence
         if not has_valve_word:
@@ -178,6 +184,7 @@ def _valves_covered(ctx: Context) -> set[int]:
     return covered
 
 
+_SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+)+\s*%")  # "79/16/5 %": each a percentage
 _PLURAL_VALVES = re.compile(r"\b(?:valves|válvulas|ventile|vannes)\b", re.IGNORECASE)
 _LIST_JOIN = re.compile(r"\s*(?:/|,|;|-|–|\band\b|\by\b|\bund\b|\bet\b|\be\b)\s*", re.IGNORECASE)
 
@@ -186,7 +193,8 @@ def _valve_list(ctx: Context, s: tx.Sentence, fractions: list, n: int) -> bool:
     """A valve sentence listing one bare fraction per branch in a row ("Ventile 0,69 / 0,053 / 0,169"): it states the
     split (grounding and the bounds judge its values)."""
     text = ctx.rec.text
-    bare = [m for m in fractions if m.unit == "" and m.decimals >= 1 and 0 <= m.value <= 1]
+    bare = [m for m in fractions if (m.unit == "" and m.decimals >= 1 and 0 <= m.value <= 1) or m.unit == "%"
+            or (m.unit == "" and _SLASH_PERCENT.match(text, m.end))]  # fmt: skip
     for k in range(len(bare) - n + 1):
         run = bare[k : k + n]
         if all(_LIST_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
