@@ -296,20 +296,20 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     # "the tower fans slowed down" is about the fans, not the leaving-water setpoint
     "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b",
                        r"towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)"),
-    "valve": (r"\bvalves?\b", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
+    "valve": (r"\bvalves?\b", r"\bvent(?=\s*[=:])", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
               r"\bshare of (?:the )?flow\b", r"\bof (?:the )?(?:\w+ )?flow\b", r"\bflow share\b",
               r"\bof (?:the )?(?:\w+ )?coolant\b", r"\bopen\w*",
               r"\bclos\w*", r"\bthrottl\w*", r"\btilt\w*", r"\bemphasi[sz]\w*", r"\bfavou?r\w*"),
 }  # fmt: skip
 # es / de / fr valve and split words the quantity phrases do not hold
 VALVE_WORDS = {
-    "es": ("válvulas?", "fracci(?:ón|ones)", "aperturas?", "reparto", r"repart\w*", r"distribu\w*",
+    "es": ("válvulas?", "fracci(?:ón|ones)", r"recib\w*", "aperturas?", "reparto", r"repart\w*", r"distribu\w*",
            r"(?:cuota|parte)\s+del\s+caudal", r"del\s+caudal", "abierta", "abierto", "abrió", "abre", "cerrada",
            "cerrado", "cerró", "cierra", r"estrangul\w*"),
-    "de": ("ventile?", r"ventil(?!ator|ador)\w+", "ventilanteile?", r"anteile?", r"öffnung\w*", "aufteilung", r"verteil\w*",
+    "de": ("ventile?", r"ventil(?!ator|ador)\w+", "ventilanteile?", "erhält", "bekommt", r"anteile?", r"öffnung\w*", "aufteilung", r"verteil\w*",
            r"des\s+durchflusses", r"durchflussanteile?", "geöffnet", r"öffnet", "geschlossen", r"schließt",
            r"gedrosselt", r"drosselt"),
-    "fr": ("vannes?", "fractions?", r"ouvertures?", "répartition", r"répart\w*", r"distribu\w*", r"(?:part\s+)?du\s+débit",
+    "fr": ("vannes?", "fractions?", r"ouvertures?", "répartition", r"part\s+de\s+débit", r"reçoi\w*", r"répart\w*", r"distribu\w*", r"(?:part\s+)?du\s+débit",
            "ouverte?s?", "ouvre", "fermée?s?", "ferme", r"étrangl\w*"),
 }  # fmt: skip
 # es / de / fr tower words that name its setpoint

@@ -141,8 +141,12 @@ def _valves_covered(ctx: Context) -> set[int]:
         if any(s.start <= p < s.end for p in rounded):
             covered.update(range(valves.size))
         mentions = ctx.branches_in(s.start, s.end)
-        if not mentions and last is not None and has_valve_word and tx.PRONOUN.search(s.text):
-            if any(ctx.matches(m, "fraction", valves[last]) for m in ctx.numbers_in(s.start, s.end)):
+        # "its valve ...", "Das Ventil geht von 0,440 auf 0,490": the branch the previous sentence was about, before
+        # this sentence names another
+        head_end = mentions[0].start if mentions else s.end
+        head = ctx.rec.text[s.start : head_end]
+        if last is not None and has_valve_word and (tx.PRONOUN.search(head) or _THE_VALVE.search(head)):
+            if any(ctx.matches(m, "fraction", valves[last]) for m in ctx.numbers_in(s.start, head_end)):
                 covered.add(last)
         entities = {ctx.entity(b) for b in mentions}
         last = entities.pop() if len(entities) == 1 else (last if not mentions else None)
@@ -161,7 +165,7 @@ def _valves_covered(ctx: Context) -> set[int]:
             exact = any(m.unit == "" and m.decimals >= 2 for m in cited)  # "branche 3 passe de 0,388 à 0,373"
             # a valve sentence that gives branch j a fraction or a move states its valve, right or wrong (grounding
             # and the direction check judge it): "la rama 3 se abre hasta 0,59", "Ventil Zweig 1 | 1,36 | 0,355"
-            stated = (has_valve_word or previous_valves) and (
+            stated = has_valve_word and (
                 any(m.unit in ("", "%") and 0 <= m.value <= (100 if m.unit == "%" else 1.5) and (m.decimals or m.unit)
                     for m in ctx.numbers_in(a, z)) or tx.ANY_DIRECTION.search(span))  # fmt: skip
             if (cited and (has_valve_word or previous_valves or exact or tx.VALVE.search(span))) or share or talks \
@@ -174,6 +178,9 @@ def _valves_covered(ctx: Context) -> set[int]:
         if _in_order(ctx, fractions, valves) or _valve_list(ctx, s, fractions, valves.size):
             covered.update(range(valves.size))
         equal = float(np.ptp(valves)) < 0.01
+        given = {round(m.value, 6) for m in fractions if m.unit in ("", "%")}
+        if not mentions and tx.EACH.search(s.text) and len(given) == 1:
+            covered.update(range(valves.size))  # "vannes à 0,5 chacune": every valve is given (bounds judge 0,5)
         one_share = bool(fractions) and all(ctx.matches(m, "fraction", valves[0]) for m in fractions) \
             and bool(_PLURAL_VALVES.search(s.text)) and not mentions  # "les trois vannes restent à 33 %"
         if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and fractions
@@ -184,6 +191,8 @@ def _valves_covered(ctx: Context) -> set[int]:
     return covered
 
 
+_THE_VALVE = re.compile(r"\b(?:the\s+valve|das\s+ventil|la\s+vanne|la\s+válvula|sein\s+ventil|su\s+válvula|sa\s+vanne)\b",
+                        re.IGNORECASE)  # fmt: skip
 _SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+)+\s*%")  # "79/16/5 %": each a percentage
 _PLURAL_VALVES = re.compile(r"\b(?:valves|válvulas|ventile|vannes)\b", re.IGNORECASE)
 _LIST_JOIN = re.compile(r"\s*(?:/|,|;|-|–|\band\b|\by\b|\bund\b|\bet\b|\be\b)\s*", re.IGNORECASE)

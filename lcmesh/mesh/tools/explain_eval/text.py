@@ -166,8 +166,12 @@ def normalize(text: str, language: str = "en") -> str:
     lowered). Prose without these shapes is returned unchanged."""
     out, header = [], None
     text = _flatten_json(_decimal_commas(text, language))
-    for line in text.splitlines():
+    lines = text.splitlines()
+    bare = _bare_table_lines(lines)
+    for k, line in enumerate(lines):
         s = line.strip()
+        if k in bare:
+            s = line = "| " + s + " |"
         if len(s) > 1 and s.startswith("|") and s.endswith("|"):
             cells = [c.strip() for c in s.strip("|").split("|")]
             if all(_TABLE_RULE.match(c) for c in cells if c):
@@ -191,6 +195,22 @@ def normalize(text: str, language: str = "en") -> str:
             line = f"{m.group('lead')}{m.group('key')} {m.group('dir')} at {m.group('val')}."
         out.append(line)
     return "\n".join(out)
+
+
+def _bare_table_lines(lines: list[str]) -> set[int]:
+    """Lines of a table written without its outer pipes ("Zweig | Temp. | Ventil" over "1 | 29,8 °C | 0,33"): two or
+    more lines in a row with the same number (two or more) of cell separators."""
+    counts = [s.count("|") if not s.strip().startswith("|") else -1 for s in lines]
+    found: set[int] = set()
+    k = 0
+    while k < len(lines):
+        j = k
+        while j + 1 < len(lines) and counts[j + 1] == counts[k]:
+            j += 1
+        if counts[k] >= 2 and j > k:
+            found.update(range(k, j + 1))
+        k = j + 1
+    return found
 
 
 def _row(cells: list[str], header: list[str]) -> str:
