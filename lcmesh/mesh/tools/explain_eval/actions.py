@@ -365,7 +365,7 @@ def direction_claims(
 
 
 # a list of settings separated by commas, bullets or "and": a direction word belongs to its own item
-_SEGMENT_BREAK = re.compile(r"[,;·|(]|\)|\b(?:and|und|y|et|e|sowie)\b", re.IGNORECASE)
+_SEGMENT_BREAK = re.compile(r"[,;·|]|\)|\b(?:and|und|y|et|e|sowie)\b", re.IGNORECASE)
 
 
 def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:

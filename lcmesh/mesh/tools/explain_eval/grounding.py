@@ -227,6 +227,8 @@ def _topic_of(text: str, m: NumberMention) -> str | None:
     item = [b.end() for b in _LIST_ITEM_END.finditer(before)]  # "Vorlauf-Soll 30,0 °C, Turm-Soll 29,4 °C": each its own
     if item and _TOPIC_NAMES.search(before, item[-1]):
         before = before[item[-1] :]
+    elif item and re.search(r"[^\W\d_]{2,}", before[item[-1] :]):
+        return None  # "..., tour 17,7 °C", "FK 18,6 °C": the item names its number by a word of its own
     names = list(_TOPIC_NAMES.finditer(before))
     if not names:
         return None

@@ -316,10 +316,12 @@ def _clauses(sentence: str, offset: int) -> list[Clause]:
 # --- branch mentions ----------------------------------------------------------------------------
 
 _JOIN = vocab.alternation(r",\s*" + _AND, ",", _AND, *function_words("or"), "&", "/", "to", "through", "-", "–")
-_NUM_LIST = r"\d+" + vocab.NOT_A_VALUE + r"(?:\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE + r")*"
+_ITEM_VALUE = r"(?:\s*\([^()]{1,20}\))?"  # "ramas 1 (0,324) y 2 (0,340)": each item with its value in brackets
+_NUM_LIST = (r"\d+" + vocab.NOT_A_VALUE + r"(?:" + _ITEM_VALUE + r"\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE
+             + r")*")  # fmt: skip
 _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I)
 _SHARE_FRACTION = re.compile(r"1/[2-9]")
-_PERCENT_AFTER = re.compile(r"\s*(?:%|por\s*ciento|prozent|pour\s*cent)", I)
+_PERCENT_AFTER = re.compile(r"(?:\s*/\s*\d+)*\s*(?:%|por\s*ciento|prozent|pour\s*cent)", I)
 # "V1=0,333", "V2 zu", "br. 3", "Br.2": a valve's or a branch's short name (a mention of that branch)
 _VALVE_SHORT = re.compile(r"\b(?:V|br\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
 _LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&)\s*" + vocab.ARTICLE + "?", I)
@@ -352,7 +354,9 @@ def branch_mentions(text: str) -> list[BranchMention]:
         if previous_end is None or not _LIST_JOIN.fullmatch(text, previous_end, m.start()):
             g += 1
         previous_end = m.end()
-        for n in re.finditer(r"\d+", m.group("nums")):
+        for n in re.finditer(r"\([^()]*\)|\d+", m.group("nums")):
+            if n.group().startswith("("):
+                continue
             start = m.start() if n.start() == 0 else m.start("nums") + n.start()
             found.append(BranchMention(start, m.start("nums") + n.end(), int(n.group()), group=g))
     found += [BranchMention(m.start(), m.end(), int(m.group("num"))) for m in _BRANCH_SHORT.finditer(text)]
@@ -360,7 +364,7 @@ def branch_mentions(text: str) -> list[BranchMention]:
     for m in _BRANCH_ORDINAL.finditer(text):
         if m.group("ord"):
             found.append(BranchMention(m.start(), m.end(), _ORDINALS[m.group("ord").lower()], True))
-        elif _BRANCH_WORD.search(text, max(text.rfind(". ", 0, m.start()), 0), _sentence_end(text, m.end())):
+        elif _BRANCH_WORD.search(text, max(m.start() - 200, 0), _sentence_end(text, m.end())):
             found.append(BranchMention(m.start("ord2"), m.end(), _ORDINALS[m.group("ord2").lower()], True))
     found.sort(key=lambda b: b.start)
     return found
