@@ -229,7 +229,7 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "innerhalb des": ("in_band", "inside", "total", "band_low", "band_high"), "energie": _ENERGY,
     "vorlauf-soll": ("supply_setpoint", "supply"), "vorlaufsoll": ("supply_setpoint", "supply"),
     "vl-soll": ("supply_setpoint", "supply"), "kt-soll": ("lw_setpoint", "lw"), "kt-austritt": ("lw_setpoint", "lw"),
-    "vl ": ("supply_setpoint", "supply"), "kt ": ("lw_setpoint", "lw"), "kühlturm-soll": ("lw_setpoint", "lw"),
+    "kühlturm-soll": ("lw_setpoint", "lw"),
     "austrittssollwert": ("lw_setpoint", "lw"), "turm-austritt": ("lw_setpoint", "lw"),
     "austritt-soll": ("lw_setpoint", "lw"),
     "turm-soll": ("lw_setpoint", "lw"), "turmsoll": ("lw_setpoint", "lw"), "kühlturm": ("leaving_water", "lw"),
@@ -289,12 +289,13 @@ _SUPPLY_SETPOINT = ((r"(?:supply|coolant|CDU|inlet)(?:[\s-]+(?:water|coolant|tem
 EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     "supply_setpoint": _SUPPLY_SETPOINT,
     "supply": (*_SUPPLY_SETPOINT, r"supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature",
-               r"coolant[\s-]+(?:supply[\s-]+)?temperature", r"\bsupply\b", r"\bcoolant\b"),
+               r"coolant[\s-]+(?:supply[\s-]+)?temperature", r"\bsupply\b", r"\bcoolant\b",
+               r"\bVL\b(?![\s-]*\d)"),  # German shorthand: Vorlauf
     "flow": (r"\bflow(?:[\s-]+rate)?\b", r"\bpump[\s-]+speed\b", r"\bQ_?cdu\b", r"\bmass flow\b"),
     "dp": (r"\bdp\b", r"Δ\s?p\b", r"\bdelta[\s-]?p\b", r"differential[\s-]+pressure", r"\bpressure\b", "pump head"),
-    "tower": (r"cooling[\s-]+towers?", r"\btowers?\b", r"\bCTs?\b", _TOWER_WATER),
+    "tower": (r"cooling[\s-]+towers?", r"\btowers?\b", r"\bCTs?\b", _TOWER_WATER, r"\bKT\b(?![\s-]*\d)"),
     # "the tower fans slowed down" is about the fans, not the leaving-water setpoint
-    "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b",
+    "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b", r"\bKT\b(?![\s-]*\d)",
                        r"towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)"),
     "valve": (r"\bvalves?\b", r"\bvent(?=\s*[=:])", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
               r"\bshare of (?:the )?flow\b", r"\bof (?:the )?(?:\w+ )?flow\b", r"\bflow share\b",

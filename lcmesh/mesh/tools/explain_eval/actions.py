@@ -385,6 +385,8 @@ def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False)
             continue  # "the setpoint lets the tower fans ease off": the fans' direction
         # "Vorlauf-Soll auf 29,6 °C angehoben, Δp 27,5 psi": the word belongs to its own list item first
         across = bool(_SEGMENT_BREAK.search(text, *gap))
+        if across:
+            dist += 4  # across a list break only when nothing in its own item is near
         candidates.append((across, dist if far is None else min(dist, far), name, d0))
     if not candidates:
         return
