@@ -153,8 +153,10 @@ _SUPPLY_CAUSE = re.compile(
 _CAUSE_PATTERNS = (("supply", _SUPPLY_CAUSE),
                    ("flow", re.compile(tx.FLOW.pattern + "|" + tx.DP.pattern, re.I)),
                    ("tower", tx.TOWER_SETPOINT))  # fmt: skip
-_OPEN = re.compile(r"\b(?:open(?:s|ed|ing)?|widen(?:s|ed|ing)?)\b(?!\s+(?:loop|circuit))", re.I)
-_CLOSE = re.compile(r"\b(?:clos(?:e|es|ed|ing)|throttl(?:e|es|ed|ing)|narrow(?:s|ed|ing)?)\b", re.I)
+_OPEN = re.compile(r"\b(?:open(?:s|ed|ing)?|widen(?:s|ed|ing)?|abr(?:ir|e|ió|iera|iendo)|abiert[oa]|ouvr\w*|ouverte?"
+                   r"|öffn\w*|geöffnete?[nrs]?)\b(?!\s+(?:loop|circuit))", re.I)
+_CLOSE = re.compile(r"\b(?:clos(?:e|es|ed|ing)|throttl(?:e|es|ed|ing)|narrow(?:s|ed|ing)?|cerr\w*|ferm\w*|schließ\w*"
+                    r"|geschlossene?[nrs]?|drossel\w*|gedrosselt)\b", re.I)
 
 
 def check_physics(ctx: Context) -> list[Flag]:
@@ -203,10 +205,10 @@ def _causes(ctx: Context, s: tx.Sentence) -> list[tuple[str, str, int, int]]:
     out = []
     for dim, pattern in _CAUSE_PATTERNS:
         for m in pattern.finditer(t):
-            before = t[max(0, m.start() - 30) : m.start()]
-            if tx.CAUSE_ADJ_UP.search(before):
+            before, after = t[max(0, m.start() - 30) : m.start()], t[m.end() : m.end() + 30]
+            if tx.CAUSE_ADJ_UP.search(before) or tx.CAUSE_AFTER_UP.match(after):
                 pol = "up"
-            elif tx.CAUSE_ADJ_DOWN.search(before):
+            elif tx.CAUSE_ADJ_DOWN.search(before) or tx.CAUSE_AFTER_DOWN.match(after):
                 pol = "down"
             else:
                 near = [p for d, p, pos in claimed if d == dim and abs(pos - m.start()) < 60]

@@ -402,24 +402,40 @@ NEGATED_HOLD = re.compile(r"(?:is|was)\s+not\s+changed|did\s+not\s+change|no\s+c
                           r"|nicht\s+(?:verändert|geändert)|(?:n['’]a\s+)?pas\s+(?:changé|bougé)", I)  # fmt: skip
 
 # physics: cause adjectives right before a dimension word, and effect targets with their words
+# a verb or noun of moving a setting, in any form ("relever la Δp", "si bajáramos la impulsión", "eine Erhöhung des
+# Sollwerts", "cette baisse de la consigne"), then an article
+_ARTICLE_AFTER = r"(?:\s+(?:la|le|les|el|los|las|the|its|sa|son|su|die|der|den|des|das|dem|de|del|du|von|l['’]))*"
+_MOVE_UP = (r"rais\w*|increas\w*|open\w*|rel[eè]v\w*|augment\w*|hausse|remont\w*|ouvr\w*|sub(?:ir|iera|iéramos|e|ió|ida|"
+            r"iendo)|aument\w*|elev\w*|abr(?:ir|iera|iéramos|e|ió|iendo)|anheb\w*|anhebung|erhöh\w*|öffn\w*|hoch\w*")
+_MOVE_DOWN = (r"lower(?:ing|ed|s)?|decreas\w*|reduc\w*|clos\w*|throttl\w*|baiss\w*|abaiss\w*|diminu\w*|ferm\w*|"
+              r"réduir\w*|baj(?:ar|ara|áramos|amos|ó|ando|ada)|cerr\w*|disminu\w*|senk\w*|absenk\w*|schließ\w*|"
+              r"drossel\w*|verringer\w*")
 CAUSE_ADJ_UP = re.compile(
     r"\b(?:higher|warmer|more|increased|raised|larger|bigger|extra|greater|opening|raising|increasing"
-    r"|más|mayor|mehr|höhere[nrs]?|plus\s+de|davantage\s+de)\s*$", I
+    r"|más|mayor|mehr|höhere[nrs]?|plus\s+de|davantage\s+de|" + _MOVE_UP + r")" + _ARTICLE_AFTER + r"\s*$", I
 )
 CAUSE_ADJ_DOWN = re.compile(
     r"\b(?:lower|colder|cooler|less|reduced|lowered|smaller|closing|lowering|reducing|decreasing|throttling"
-    r"|menos|menor|weniger|niedrigere[nrs]?|moins\s+de)\s*$", I
+    r"|menos|menor|weniger|niedrigere[nrs]?|moins\s+de|" + _MOVE_DOWN + r")" + _ARTICLE_AFTER + r"\s*$", I
 )
+# the same after the dimension word: "un Δp plus élevé", "una consigna más alta", "une consigne de départ plus basse"
+CAUSE_AFTER_UP = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+(?:élevée?s?|haute?s?)|supérieure?s?|más\s+alt[oa]s?|"
+                            r"higher|höher\w*)\b", I)
+CAUSE_AFTER_DOWN = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+basse?s?|inférieure?s?|más\s+baj[oa]s?|lower|"
+                              r"niedriger\w*|tiefer\w*)\b", I)
 TARGETS = {
     "temp": words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
                    "components?", "hardware", r"hot\s?spots?", "branch(?:es)?",
-                   "placas", "temperaturas?", r"temperatur(?:en)?", "températures?", "lames"),
+                   "placas", "temperaturas?", r"temperatur(?:en)?", "températures?", "lames",
+                   "ramas?", r"zweige?s?", "branches?", r"supply\s+water", r"eau\s+de\s+(?:soufflage|départ)",
+                   r"agua\s+de\s+impulsión", r"vorlauf(?:wasser|temperatur)?"),
     "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)",
                  r"(?:potencia\s+de\s+(?:los\s+)?)?ventiladores", r"lüfter(?:leistung)?",
                  r"(?:puissance\s+des\s+)?ventilateurs"),
     "pump": words(r"pump(?:ing)?[\s-]+(?:power|energy|work)", r"potencia\s+de\s+(?:la\s+)?bomba",
-                  r"pumpenleistung", r"puissance\s+de\s+(?:la\s+)?pompe"),
-    "energy": words("energy", "electricity", r"power\s+(?:use|draw|consumption)", "energía", "energie", "énergie"),
+                  r"pumpenleistung", r"puissance\s+de\s+(?:la\s+)?pompe", "pumps?", "bombas?", "pumpen?", "pompes?"),
+    "energy": words("energy", "electricity", r"power\s+(?:use|draw|consumption)", "energía", "energie", "énergie",
+                    "consumo", "verbrauch", "consommation"),
 }  # fmt: skip
 _RISE = ("ris(?:e|es|ing)", "rose", "increas(?:e|es|ed|ing)", "rais(?:e|es|ed|ing)", "higher",
          "aumenta", "sube", "steigt", "erhöht", "augmente", "monte")  # fmt: skip
@@ -427,15 +443,20 @@ _FALL = ("lower(?:s|ed|ing)?", "drop(?:s|ped)?", "decreas(?:e|es|ed|ing)", "redu
          "reduce", "baja", "disminuye", "senkt", "sinkt", "réduit", "diminue", "baisse")  # fmt: skip
 EFFECT_UP = {
     "temp": words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?",
-                   "calienta", "erwärmt", "réchauffe"),
+                   r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer", r"más\s+calient\w*", r"plus\s+chaud\w*",
+                   r"aufheiz\w*", r"heiz\w*"),
     "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
-                    "more", "costs?", "adds?", "cuesta", "kostet", "coûte"),
+                    "more", "costs?", "adds?", "cuesta", "kostet", "coûte", r"trabaj\w*\s+más", r"travaill\w*\s+plus",
+                    r"mehr\s+arbeiten", r"cost\w*", r"coût\w*", r"kost\w*", r"consum\w*\s+más", r"más\s+consumo"),
 }  # fmt: skip
 EFFECT_DOWN = {
     "temp": words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
-                   r"more\s+cooling", "enfría", "kühlt", "refroidit"),
+                   r"more\s+cooling", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter", r"más\s+fr[ií]\w*",
+                   r"plus\s+froid\w*"),
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
-                    "idles?", "ahorra", "spart", "économise"),
+                    "idles?", "ahorra", "spart", "économise", r"trim\w*", r"relie\w*", r"ahorr\w*", r"spar\w*",
+                    r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
+                    r"reducir\w*", r"verringer\w*"),
 }  # fmt: skip
 REASON = words("because", "since", "due to", "as a result of", "given")
 # water said to leave the tower colder than the wet bulb, however it is put: "below the wet bulb", "colder than the
