@@ -168,9 +168,10 @@ def check_physics(ctx: Context) -> list[Flag]:
         effects = []  # (target, up|down, effect start, target start, target end)
         for target, pattern in tx.TARGETS.items():
             for m in pattern.finditer(t):
-                effect = _effect_direction(t, m.start(), m.end(), "temp" if target == "temp" else "power")
+                kind = {"temp": "temp", "branch": "heat"}.get(target, "power")
+                effect = _effect_direction(t, m.start(), m.end(), kind)
                 if effect is not None:
-                    effects.append((target, effect[0], effect[1], m.start(), m.end()))
+                    effects.append(("temp" if target == "branch" else target, effect[0], effect[1], m.start(), m.end()))
         causes = _causes(ctx, s) if effects else []
         for target, pol, e0, m0, m1 in effects if causes else []:
             if any(c[2] <= m0 < c[3] for c in causes):
@@ -227,10 +228,12 @@ def _effect_direction(t: str, a: int, b: int, kind: str) -> tuple[str, int] | No
     for pol, table in (("up", tx.EFFECT_UP), ("down", tx.EFFECT_DOWN)):
         for w in table[kind].finditer(t):
             if w.end() <= a:
-                dist = tx.words_between(t, w.end(), a)
+                dist, gap = tx.words_between(t, w.end(), a), (w.end(), a)
             elif w.start() >= b:
-                dist = tx.words_between(t, b, w.start())
+                dist, gap = tx.words_between(t, b, w.start()), (b, w.start())
             else:
+                continue
+            if tx.EFFECT_BREAK.search(t, *gap):
                 continue
             if dist <= 3 and (best is None or dist < best[0]):
                 best = (dist, pol, w.start())

@@ -427,8 +427,11 @@ TARGETS = {
     "temp": words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
                    "components?", "hardware", r"hot\s?spots?", "branch(?:es)?",
                    "placas", "temperaturas?", r"temperatur(?:en)?", "températures?", "lames",
-                   "ramas?", r"zweige?s?", "branches?", r"supply\s+water", r"eau\s+de\s+(?:soufflage|départ)",
-                   r"agua\s+de\s+impulsión", r"vorlauf(?:wasser|temperatur)?"),
+                   r"supply\s+water", r"eau\s+de\s+(?:soufflage|départ)", r"agua\s+de\s+impulsión",
+                   r"vorlauf(?:wasser|temperatur)"),
+    # a branch itself warms or cools ("würde Zweig 2 noch wärmer machen", "la réchaufferait"): warm/cool words only
+    "branch": words("ramas?", r"zweige?s?", "branches?", "branch", r"(?:la|le|lo)(?=\s+\w*(?:calent|enfri|réchauff|"
+                    r"refroid))"),
     "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)",
                  r"(?:potencia\s+de\s+(?:los\s+)?)?ventiladores", r"lüfter(?:leistung)?",
                  r"(?:puissance\s+des\s+)?ventilateurs"),
@@ -449,6 +452,9 @@ EFFECT_UP = {
                     "more", "costs?", "adds?", "cuesta", "kostet", "coûte", r"trabaj\w*\s+más", r"travaill\w*\s+plus",
                     r"mehr\s+arbeiten", r"cost\w*", r"coût\w*", r"kost\w*", r"consum\w*\s+más", r"más\s+consumo"),
 }  # fmt: skip
+# an effect word reaches its target only within its own part of the sentence: "warms the supply water but reduces
+# fan power" says nothing of the water going down
+EFFECT_BREAK = re.compile(r"\b(?:but|pero|aber|mais|while|whereas|mientras|während|tandis|yet|sino|sondern)\b|[;,]", I)
 EFFECT_DOWN = {
     "temp": words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
                    r"more\s+cooling", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter", r"más\s+fr[ií]\w*",
@@ -458,6 +464,10 @@ EFFECT_DOWN = {
                     r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
                     r"reducir\w*", r"verringer\w*"),
 }  # fmt: skip
+EFFECT_UP["heat"] = words("warm(?:s|ed|ing|er)?", "hotter", r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
+                          r"más\s+calient\w*", r"plus\s+chaud\w*", r"heat(?:s|ed|ing)?\s+up")
+EFFECT_DOWN["heat"] = words("cool(?:s|ed|er)?", "colder", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter",
+                            r"más\s+fr[ií]\w*", r"plus\s+froid\w*", r"senkt\s+(?:dessen|seine|ihre|die)\s+temperatur")
 REASON = words("because", "since", "due to", "as a result of", "given")
 # water said to leave the tower colder than the wet bulb, however it is put: "below the wet bulb", "colder than the
 # 18.8 °C wet bulb", "más fría que el bulbo húmedo", "kälter als die Feuchtkugel", "plus froide que le bulbe humide"
