@@ -38,6 +38,9 @@ def check_ranking(ctx: Context) -> list[Flag]:
         for what, extreme, pattern in tx.SUPERLATIVES:
             values = data[what]
             for w in pattern.finditer(s.text):
+                if _NOT_ONE.match(s.text, w.end()) or re.search(r"\b(?:between|entre|zwischen)\s+(?:the\s+|la\s+|le\s+|"
+                                                                   r"dem\s+)?$", s.text[: w.start()], re.I):
+                    continue
                 b = _nearest(ctx, s, mentions, s.start + w.start(), s.start + w.end())
                 if values is None or b is None or not 0 <= ctx.entity(b) < values.size:
                     continue
@@ -96,11 +99,14 @@ def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.Bra
     before = [b for b in mentions if b.end <= w0 and dist(b) <= 25]
     if before:
         return before[-1]
-    after = [b for b in mentions if b.start >= w1 and dist(b) <= 3]
+    after = [b for b in mentions if b.start >= w1 and dist(b) <= 3 and not _NEXT_PHRASE.search(text, w1, b.start)]
     return after[0] if after else None
 
 
-_IS_NAMED = re.compile(r"\s*(?:[\w-]+\s+)?(?:is|was|es|era|est|ist|war)\b", re.I)
+_IS_NAMED = re.compile(r"\s*(?:(?:[\w-]+\s+)?(?:is|was|es|era|est|ist|war)\b|:)", re.I)  # "la más fría: la 3"
+# "the hottest and coolest blades", "between the hottest and the coolest": no one branch is ranked
+_NOT_ONE = re.compile(r"^\s*(?:and|y|und|et)\s+(?:the\s+|la\s+|le\s+|die\s+|der\s+)?\w+\s+(?:blades|branches|ramas|"
+                      r"zweige|branches|ones)\b|^\s+(?:blades|branches|ones|ramas|zweige)\b", re.I)
 
 
 def _comparatives(ctx: Context, s: tx.Sentence, mentions, data) -> list[Flag]:

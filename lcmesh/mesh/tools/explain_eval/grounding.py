@@ -25,7 +25,7 @@ from lcmesh.mesh.tools.explain_eval.record import EvalConfig, Record
 
 DIFF_CUE = re.compile(
     r"\b(?:above|below|than|warmer|hotter|cooler|colder|higher|lower|more|less|difference|differ\w*|spread|spans?"
-    r"|gap|margin|apart|delta|approach|between|exceed\w*|short of|beyond|inside|outside|headroom"
+    r"|gap|margin|apart|delta|approach|between|exceed\w*|short of|beyond|inside|outside|headroom|under|away|off"
     # es / de / fr
     r"|margen|marge|abstand|reserve|diferencia|differenz|unterschied|écart|sous|unter|über|debajo|encima|au-dessus"
     r"|en\s+dessous|por\s+debajo|por\s+encima|más\s+que|menos\s+que|plus\s+que|moins\s+que|hasta|bis|jusqu)\b|Δ",

@@ -38,6 +38,7 @@ _ENTITY_NOUNS = vocab.alternation(*(w for by_lang in vocab.ENTITY_WORDS.values()
                                   *(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))  # fmt: skip
 _INDEX_WORD = re.compile(_ENTITY_NOUNS + "|" + vocab.alternation(
     "cells?", "nodes?", "heads?", "rank", "category", "level", "step", "index", "number", "no", "pumps?", "loop",
+    "paso", "schritt", "pas", "étape", "zeitschritt", "reihe", "fila", "rangée",
     "zone", "row", "option", "priority", "id", "phase", "stage", "agent", "cts?", "b", "c", "t", "item", "decision",
     "line", "section", "table", "figure", "fig", "appendix", "equation", "eq", "algorithm", "case", "scenario",
     "example", "version", "blades", "lames"), re.IGNORECASE)  # fmt: skip
@@ -54,7 +55,7 @@ _RANGE_DASH_BEFORE = re.compile(r"\d[\s\u00a0]*$|[A-Za-z]$")
 _ORDINAL = re.compile(r"^(?:st|nd|rd|th)\b")
 _AND_OR = vocab.alternation(*vocab.function_words("and"), *vocab.function_words("or"))
 _CHAIN = re.compile(r"^[\s\u00a0]*(?:,|" + _AND_OR + r"|&|/|,[\s\u00a0]*" + _AND_OR + r"|to|through|-|–)[\s\u00a0]*$")
-_RANGE = re.compile(r"^[\s\u00a0]*(?:-|–|—|to|and|/)[\s\u00a0]*$")
+_RANGE = re.compile(r"^[\s\u00a0]*(?:-|–|—|to|and|/|y|und|et|a|à|bis|hasta)[\s\u00a0]*$")
 
 
 @dataclass

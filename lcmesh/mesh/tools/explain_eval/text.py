@@ -241,7 +241,7 @@ _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
 # chat and log writers start sentences in lower case too ("dp held. torre sube a 29,0 °C"), but not after an
 # abbreviation ("cons. 18,0 °C", "approx. 3 K", "z. B.")
 _LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[a-zà-öø-ÿ])")
-_ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|e\.g|i\.e|z\.\s?b|"
+_ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|br|arm|cab|e\.g|i\.e|z\.\s?b|"
                            r"u\.\s?a|d\.\s?h|p\.\s?ej|c\.-à-d)\.)$", I)
 _SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔΔ\"'(\[*•¿¡-])")
 _AND = vocab.alternation(*function_words("and"))
@@ -315,7 +315,8 @@ def _clauses(sentence: str, offset: int) -> list[Clause]:
 
 # --- branch mentions ----------------------------------------------------------------------------
 
-_JOIN = vocab.alternation(r",\s*" + _AND, ",", _AND, *function_words("or"), "&", "/", "to", "through", "-", "–")
+_JOIN = vocab.alternation(r",\s*" + _AND, ",", _AND, *function_words("or"), "&", "/", "to", "through", "-", "–", "à",
+                          "bis", "hasta", "al")  # fmt: skip
 _ITEM_VALUE = r"(?:\s*\([^()]{1,20}\))?"  # "ramas 1 (0,324) y 2 (0,340)": each item with its value in brackets
 _NUM_LIST = (r"\d+" + vocab.NOT_A_VALUE + r"(?:" + _ITEM_VALUE + r"\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE
              + r")*")  # fmt: skip
@@ -367,6 +368,13 @@ def branch_mentions(text: str) -> list[BranchMention]:
         elif _BRANCH_WORD.search(text, max(m.start() - 200, 0), _sentence_end(text, m.end())):
             found.append(BranchMention(m.start("ord2"), m.end(), _ORDINALS[m.group("ord2").lower()], True))
     found.sort(key=lambda b: b.start)
+    short = {id(b) for b in found if b.group < 0}  # "br1", "V2", "the third branch": no list of their own yet
+    for a, b in zip(found, found[1:]):
+        if id(a) in short and id(b) in short and _LIST_JOIN.fullmatch(text, a.end, b.start):
+            if a.group < 0:
+                g += 1
+                a.group = g
+            b.group = a.group
     return found
 
 
