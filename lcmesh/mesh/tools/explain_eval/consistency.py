@@ -92,8 +92,10 @@ def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.Bra
             return after[0]
     # a mention after the superlative behind "and" / "und" / "y" / "et" or a comma opens the next phrase: "Zweig 2 mit
     # 27,1 °C der kühlste und Zweig 3 der wärmste" ranks Zweig 2 coolest
-    same = [b for b in mentions if clause is not None and clause.start <= b.start < clause.end and dist(b) <= 12
-            and not (b.start >= w1 and _NEXT_PHRASE.search(text, w1, b.start))]
+    in_clause = [b for b in mentions if clause is not None and clause.start <= b.start < clause.end and dist(b) <= 12]
+    same = [b for b in in_clause if not (b.start >= w1 and _NEXT_PHRASE.search(text, w1, b.start))]
+    if not any(b.end <= w0 for b in same):  # "the most loaded of them, branch 3, takes": an apposition
+        same = same or [b for b in in_clause if b.start >= w1 and dist(b) <= 4]
     if same:
         return min(same, key=dist)
     before = [b for b in mentions if b.end <= w0 and dist(b) <= 25]
