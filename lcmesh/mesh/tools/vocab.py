@@ -140,11 +140,13 @@ def _unit(pattern: str) -> re.Pattern:
 UNITS: list[tuple[re.Pattern, str]] = [
     (_unit(r"[°º]~C(?![a-zA-Z])|℃"), "degC"),
     (_unit(r"deg(?:rees?)?\.?~(?:C\b|Celsius\b)|degC\b|Celsius\b|C\b(?![-'’/])"), "degC"),
-    (_unit(r"[°º]~F\b|℉|deg(?:rees?)?\.?~(?:F\b|Fahrenheit\b)|degF\b"), "degF"),
+    (_unit(r"[°º]~F\b|℉|deg(?:rees?)?\.?~(?:F\b|Fahrenheit\b)|degF\b|F\b(?![-'’/])|grados?~Fahrenheit\b"), "degF"),
+    # spoken and written out: "30 Grad", "18 grados", "20 degrés" (Celsius where nothing says otherwise)
+    (_unit(r"(?:grados?|Grad|degrés?)\b(?!~(?:F\b|Fahrenheit))(?:~(?:C\b|Celsius\b))?"), "degC"),
     (_unit(r"K\b(?![-'’])|[Kk]elvins?\b"), "K"),
     (_unit(r"(?:kWh|MWh)\b"), "energy"),
     (_unit(r"MW\b|[Mm]egawatts?\b"), "MW"),
-    (_unit(r"kW\b|KW\b|[Kk]ilowatts?\b"), "kW"),
+    (_unit(r"kW\b|KW\b|[Kk]ilowatts?\b|[Kk]ilovatios?\b"), "kW"),
     (_unit(r"W\b|[Ww]atts?\b"), "W"),
     (_unit(r"kg~/~s\b|kg~s(?:\^?-1|⁻¹)|kg per s(?:ec(?:ond)?)?\b"), "kg/s"),
     (_unit(r"[Ll]~/~s\b|lit(?:re|er)s? per second\b"), "L/s"),
@@ -254,6 +256,8 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "eau sortie": ("leaving_water", "lw_setpoint", "lw"), "sortie de tour": ("leaving_water", "lw_setpoint", "lw"),
     "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "consigne tour": ("lw_setpoint", "lw"),
     "consigne d'eau sortie": ("lw_setpoint", "lw"), "consigne de sortie": ("lw_setpoint", "lw"),
+    "consigne depart": ("supply_setpoint", "supply"), "depart": ("supply_temp", "supply_setpoint", "supply"),
+    "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "tour consigne sortie": ("lw_setpoint", "lw"),
     "consigne de sortie de tour": ("lw_setpoint", "lw"), "consigne départ": ("supply_setpoint", "supply"),
 }  # fmt: skip
 QUANTITY = re.compile("|".join(re.escape(w) for w in sorted(QUANTITY_WORDS, key=len, reverse=True)), I)
@@ -361,11 +365,11 @@ _SHARE_EN = r"\s+(?:\w+\s+)?(?:flow|coolant|share|fraction|opening)"
 SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     # the valves split equally
     "equal": {"en": (r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
-                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third",
+                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third", "⅓", r"identical\w*",
                      r"(?<![\d/])(?<!\d[.,])1/3(?![\d/])(?![.,]\d)", r"thirds"),
-              "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios"),
-              "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt"),
-              "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers")},
+              "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
+              "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"identisch\w*"),
+              "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers", r"identique\w*", r"équiréparti\w*")},
     "each": {"en": ("each", "every", "all"), "es": ("cada", "todas", "todos"), "de": (r"jede[nrs]?", "alle", "je"),
              "fr": ("chaque", "chacune?", "toutes", "tous")},
     # "its valve ...": the branch the previous sentence was about

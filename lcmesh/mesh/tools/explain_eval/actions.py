@@ -182,7 +182,7 @@ def _valves_covered(ctx: Context) -> set[int]:
         if not mentions and tx.EACH.search(s.text) and len(given) == 1:
             covered.update(range(valves.size))  # "vannes à 0,5 chacune": every valve is given (bounds judge 0,5)
         one_share = bool(fractions) and all(ctx.matches(m, "fraction", valves[0]) for m in fractions) \
-            and bool(_PLURAL_VALVES.search(s.text)) and not mentions  # "les trois vannes restent à 33 %"
+            and bool(_PLURAL_VALVES.search(s.text)) and not any(b.start < fractions[-1].start for b in mentions)
         if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and fractions
                                                                      and ctx.matches(fractions[0], "fraction", valves[0]))):
             # "split evenly for branch 1 and branch 3" explains those two; with no branches named its scope, every one

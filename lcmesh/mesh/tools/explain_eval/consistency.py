@@ -105,7 +105,7 @@ def _nearest(ctx: Context, s: tx.Sentence, mentions, w0: int, w1: int) -> tx.Bra
     return after[0] if after else None
 
 
-_IS_NAMED = re.compile(r"\s*(?:(?:[\w-]+\s+)?(?:is|was|es|era|est|ist|war)\b|:)", re.I)  # "la más fría: la 3"
+_IS_NAMED = re.compile(r"\s*(?:[\w-]+\s*)?(?:(?:is|was|es|era|est|ist|war)\b|[:=])", re.I)  # "la más fría: la 3"
 # "the hottest and coolest blades", "between the hottest and the coolest": no one branch is ranked
 _NOT_ONE = re.compile(r"^\s*(?:and|y|und|et)\s+(?:the\s+|la\s+|le\s+|die\s+|der\s+)?\w+\s+(?:blades|branches|ramas|"
                       r"zweige|branches|ones)\b|^\s+(?:blades|branches|ones|ramas|zweige)\b", re.I)

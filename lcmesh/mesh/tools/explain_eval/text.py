@@ -433,7 +433,7 @@ CAUSE_AFTER_DOWN = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+basse?s?|inférieure?s?
                               r"niedriger\w*|tiefer\w*)\b", I)
 TARGETS = {
     "temp": words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
-                   "components?", "hardware", r"hot\s?spots?", "branch(?:es)?",
+                   "components?", "hardware", r"hot\s?spots?",
                    "placas", "temperaturas?", r"temperatur(?:en)?", "températures?", "lames",
                    r"supply\s+water", r"eau\s+de\s+(?:soufflage|départ)", r"agua\s+de\s+impulsión",
                    r"vorlauf(?:wasser|temperatur)"),
