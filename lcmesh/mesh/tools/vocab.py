@@ -260,6 +260,14 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "tour consigne sortie": ("lw_setpoint", "lw"),
     "consigne de sortie de tour": ("lw_setpoint", "lw"), "consigne départ": ("supply_setpoint", "supply"),
 }  # fmt: skip
+def fold_accents(text: str) -> str:
+    """The text without accents, letter for letter ("impulsión" -> "impulsion"): keys in JSON and logs drop them."""
+    import unicodedata
+
+    return "".join(unicodedata.normalize("NFKD", ch)[0] if ch.isalpha() else ch for ch in text)
+
+
+QUANTITY_WORDS.update({fold_accents(w): keys for w, keys in list(QUANTITY_WORDS.items()) if fold_accents(w) != w})
 QUANTITY = re.compile("|".join(re.escape(w) for w in sorted(QUANTITY_WORDS, key=len, reverse=True)), I)
 
 
@@ -317,6 +325,8 @@ VALVE_WORDS = {
     "fr": ("vannes?", "fractions?", r"ouvertures?", "répartition", r"part\s+de\s+débit", r"reçoi\w*", r"répart\w*", r"distribu\w*", r"(?:part\s+)?du\s+débit",
            "ouverte?s?", "ouvre", "fermée?s?", "ferme", r"étrangl\w*"),
 }  # fmt: skip
+VALVE_WORDS = {lang: forms + tuple(fold_accents(f) for f in forms if fold_accents(f) != f)
+               for lang, forms in VALVE_WORDS.items()}
 # es / de / fr tower words that name its setpoint
 TOWER_SETPOINT_WORDS = (r"consigna\s+de\s+(?:la\s+)?torre", r"turm-?sollwert", r"sollwert\s+des\s+turms",
                         r"consigne\s+de\s+(?:la\s+)?tour", r"consigne\s+d['’]eau\s+(?:sortant|de\s+sortie)")  # fmt: skip
@@ -376,7 +386,8 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     "its": {"en": ("it", "its"), "es": ("su", "sus"), "de": (r"sein\w*", r"ihr\w*"), "fr": ("son", "sa", "ses")},
     # "more flow", "a larger share", "less coolant"
     "more": {"en": (r"(?:more|larger|bigger|greater|higher|extra)" + _SHARE_EN,),
-             "es": (r"más\s+(?:\w+\s+)?(?:caudal|refrigerante|apertura)", r"mayor\s+(?:cuota|parte|apertura)"),
+             "es": (r"más\s+(?:\w+\s+)?(?:caudal|refrigerante|apertura)",
+                    r"(?<!\bla\s)(?<!\bel\s)mayor\s+(?:cuota|parte|apertura)"),
              "de": (r"mehr\s+(?:\w+\s+)?(?:durchfluss|kühlmittel)", r"(?:größere[nrs]?|höhere[nrs]?)\s+(?:anteil|öffnung)"),
              "fr": (r"plus\s+de\s+(?:débit|fluide)", r"(?:une\s+)?plus\s+grande\s+(?:part|ouverture)")},
     "less": {"en": (r"(?:less|smaller|lower|reduced)" + _SHARE_EN,),

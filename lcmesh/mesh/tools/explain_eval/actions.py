@@ -294,6 +294,22 @@ def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -
 _SETPOINT_WORD = re.compile(vocab.SETPOINT_WORD.pattern + r"|\bsoll\b|\bcons\b", re.IGNORECASE)
 
 
+_ITEM_SPLIT = re.compile(r"[,;]\s|\s(?:and|y|und|et|e)\s", re.IGNORECASE)
+
+
+def _items(s: tx.Sentence) -> list[tx.Clause]:
+    """The sentence's list items: split at commas, semicolons and "and", not at a colon ("dp: 25,7 psi" is one)."""
+    out, start = [], 0
+    for m in list(_ITEM_SPLIT.finditer(s.text)) + [None]:
+        end = m.start() if m else len(s.text)
+        piece = s.text[start:end]
+        if piece.strip():
+            hypo = any(c.hypothetical for c in s.clauses if c.start <= s.start + start < c.end)
+            out.append(tx.Clause(s.start + start, s.start + end, piece, hypo))
+        start = m.end() if m else len(s.text)
+    return out
+
+
 def _named_with_value(ctx, s: tx.Sentence, pattern, quantity, change_key) -> bool:
     """A clause that names the dimension and gives a value of its kind (a temperature for the supply and the tower, a
     pressure for dp, a flow) says what the setting is, right or wrong (grounding judges the number): "soufflage 30,0
@@ -301,7 +317,7 @@ def _named_with_value(ctx, s: tx.Sentence, pattern, quantity, change_key) -> boo
     there the value must be the setpoint's (now or before), or the clause must name the setpoint or a change."""
     supply, change = ctx.rec.supply_k, ctx.rec.changes.get("supply")
     setpoints = [] if supply is None else [supply] + ([supply - change] if change is not None else [])
-    for c in s.clauses:
+    for c in _items(s):
         if c.hypothetical or not pattern.search(c.text):
             continue
         for m in ctx.numbers_in(c.start, c.end):
@@ -348,6 +364,8 @@ def direction_claims(
                 continue
             if tx.NEGATION.search(text[max(0, w.start() - 15) : w.start()]) and not tx.NEGATED_HOLD.match(w.group()):
                 continue  # "was not raised" claims no direction; "did not change" is a hold word itself
+            if pol == "hold" and any(r.start() - w.end() <= 6 and r.start() >= w.end() for r in _superlatives(text)):
+                continue  # "la branche 2 reste la plus chargée": it stays the most loaded, nothing about its valve
             if side == "both" and tx.PASSIVE_AUX.search(text[max(0, w.start() - 25) : w.start()]):
                 side = "before"  # "the setpoint was raised": the dimension comes first
             _associate(text, w.start(), w.end(), pol, side, dims, best, single)
@@ -366,6 +384,10 @@ def direction_claims(
 
 # a list of settings separated by commas, bullets or "and": a direction word belongs to its own item
 _SEGMENT_BREAK = re.compile(r"[,;·|]|\)|\b(?:and|und|y|et|e|sowie)\b", re.IGNORECASE)
+
+
+def _superlatives(text: str) -> list[re.Match]:
+    return [r for _, _, sup in tx.SUPERLATIVES for r in sup.finditer(text)]
 
 
 def _associate(text, w0, w1, pol, side, dims, best, single_branch: bool = False) -> None:

@@ -349,6 +349,8 @@ _CHANGE_BEFORE = re.compile(r"(?:\bby|\bum|[+±Δ]|" + tx.ANY_DIRECTION.pattern 
 def _unit_mixup(ctx: Context, m) -> bool:
     """True when the digits as written are a temperature (pressure) of the data in another temperature (pressure)
     unit: "25.2 °F" where the data has 25.2 °C."""
+    if m.unit not in ("degC", "degF", "K") and not any(q == "pressure" for q, _, _ in m.interpretations):
+        return False  # a flow or a power: no other unit of the same kind to confuse it with here
     if m.unit in ("degC", "degF"):
         shown = [f(e.value) for e in ctx.pool.entries.get("temp_abs", [])
                  for u, f in (("degC", lambda k: k - K0), ("K", lambda k: k), ("degF", lambda k: k * 9 / 5 - 459.67))
@@ -392,11 +394,23 @@ def _stated_valves(ctx: Context) -> list[Flag]:
                 if sum(m.value for m in run) > 1.0 + tol:  # one list, one split
                     return [ctx.fail("bound", "out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' "
                                      "sum to more than 1", start=run[0].start, end=run[-1].end)]
-        for bm in ctx.branches_in(s.start, s.end):
+        mentions = ctx.branches_in(s.start, s.end)
+        if not mentions and tx.EACH.search(s.text) and len({m.value for m in fractions}) == 1 \
+                and fractions[0].value * n > 1.0 + tol:
+            return [ctx.fail("bound", "out_of_bounds", f"'{fractions[0].text}' for each of {n} valves sums to "
+                             f"{fractions[0].value * n:.2f}, more than 1", start=fractions[0].start,
+                             end=fractions[0].end)]  # fmt: skip
+        for bm in mentions:
             j = ctx.entity(bm)
-            if bm.group >= 0 and sum(x.group == bm.group for x in ctx.branches) > 1 or not 0 <= j < n:
+            if not 0 <= j < n:
                 continue
             a, z = ctx.span_of(bm, s)
+            group = [x for x in ctx.branches if bm.group >= 0 and x.group == bm.group]
+            if len(group) > 1:  # "valves 2 and 3 trimmed to 0.335 and 0.327": one each, in order
+                inside = [m for m in fractions if a <= m.start < z]
+                if len(inside) == len(group) and group.index(bm) < len(inside):
+                    given.setdefault(j, set()).add(inside[group.index(bm)].value)
+                continue
             for m in fractions:
                 if a <= m.start < z:
                     given.setdefault(j, set()).add(m.value)

@@ -144,7 +144,8 @@ def _flatten_json(text: str) -> str:
 # "la branche la plus chaude est la 2", "la más cargada es la 3": the number after "es/est/ist la" names a branch
 # when the sentence has named branches before it
 _IS_THE_N = re.compile(r"\b(?:es|est|ist)\s+(?:la|el|le|der|die)\s+(?=\d+\b(?![.,]\d))"
-                       r"|(?<![\w.,])(?:la|el|le|der|die)\s+(?=\d\b(?![.,]\d)\s*(?:es|est|ist|,|\())", I)
+                       r"|(?<![\w.,])(?:la|el|le|der|die|den|dem)\s+(?=[1-9]\b(?![.,]\d)(?!\s*(?:°|%|K\b|kW|psi|"
+                       r"grad|grados|degr|kilo|°C|h\b|min)))", I)
 _BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s?)\b", I)
 
 
