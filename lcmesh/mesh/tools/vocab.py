@@ -502,8 +502,28 @@ EN_DIRECTIONS: list[tuple[str, str, tuple[str, ...]]] = [
     ("hold", "before", ("steady", "constant", "stays?", "stayed", "remains?", "remained", r"(?:is|was)\s+not\s+changed",
                         r"did\s+not\s+change")),
 ]  # fmt: skip
-DIRECTIONS = EN_DIRECTIONS + [(pol, "both", tuple(w for lang in ("es", "de", "fr") for w in by_lang.get(lang, ())))
-                              for pol, by_lang in DIRECTION_WORDS.items()]  # fmt: skip
+# every inflection of the es / de / fr verbs of moving a setting (the words above are the forms the chat writes and
+# tests one by one; these stems are what other writers use: "subieron", "la bajaron", "eleva", "runter", "remonte")
+DIRECTION_STEMS: dict[str, tuple[str, ...]] = {  # finite forms and participles only: an infinitive ("subir la
+    # consigna la enfriaría", "relever la Δp ferait") names a move without claiming it
+    "up": (r"sub(?:e|en|ió|ieron|ida|ido|imos|iendo)", r"elev(?:a|an|ó|aron|ado|ada)", r"increment(?:a|an|ó|aron|ado|ada)",
+           r"aument(?:a|an|ó|aron|ado|ada)", r"abr(?:e|en|ió|ieron|iendo)", r"erhöh(?:t|te|ten)", r"angehoben\w*",
+           "hob", r"aufgemacht\w*", r"geöffnet\w*", r"öffne(?:t|te|ten)", r"relev(?:é|ée|és|ées|e|ent)", r"relève\w*",
+           r"remont(?:e|ent|é|ée)", r"mont(?:e|ent|é|ée)", r"augment(?:e|ent|é|ée|és|ées)", r"rehauss(?:e|é|ée)",
+           r"ouvr(?:e|ent)", r"ouvert\w*"),
+    "down": (r"baj(?:an|ó|aron|ada|ado|amos|ando)", r"reduc(?:e|en|ido|ida)", r"redujo|redujeron",
+             r"disminu(?:ye|yen|yó|yeron|ido|ida)", r"desciende|descendió|descendieron", r"cerr(?:ó|aron|ada|ado|ando)",
+             r"cierr(?:a|an)", r"gesenkt\w*", r"senk(?:t|te|ten)", r"abgesenkt\w*", "runter", r"zugemacht\w*",
+             r"geschlossen\w*", r"schließt|schloss", r"gedrosselt\w*", r"drossel(?:t|te)", r"verringert\w*",
+             r"baiss(?:e|ent|é|ée|és|ées)", r"abaiss(?:e|ent|é|ée)", r"diminu(?:e|ent|é|ée)", r"redescend\w*",
+             r"ferm(?:e|ent|é|ée|és|ées)", r"réduit\w*"),
+    "hold": (r"mantien\w+", r"mantuv\w+", r"mantenid[oa]s?", r"sigue|siguen", r"qued(?:a|an|ó|aron)", r"quiet[oa]s?",
+             r"sin\s+cambios?", r"gehalten\w*", r"beibehalten\w*", r"unverändert\w*", r"bleib(?:t|en)", r"blieb\w*",
+             r"konstant\w*", r"wie\s+(?:gehabt|vorher|zuvor)", r"maintenu\w*", r"inchangé\w*", r"rest(?:e|ent)",
+             r"conserv(?:e|ent|é|ée|és|ées)", "stable", "pareil", r"ne\s+(?:change|bouge)\s+pas", r"igual(?:es)?"),
+}  # fmt: skip
+DIRECTIONS = EN_DIRECTIONS + [(pol, "both", tuple(w for lang in ("es", "de", "fr") for w in by_lang.get(lang, ()))
+                               + DIRECTION_STEMS[pol]) for pol, by_lang in DIRECTION_WORDS.items()]  # fmt: skip
 """(polarity, side, forms) of every direction word the judge reads."""
 
 # --- superlatives ----------------------------------------------------------------------------------------------------

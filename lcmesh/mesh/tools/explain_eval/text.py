@@ -254,7 +254,10 @@ _CLAUSE_SPLIT = re.compile(
     I,
 )
 _CONDITIONAL_START = re.compile(r"^\W*" + vocab.alternation(*function_words("if")) + r"\b", I)
-_MODAL = words(*function_words("would"))
+# the conditional mood and general rules are no claims about this action: "la enfriaría", "ferait", "würde", "cuanto
+# más baja es la consigna ...", "je höher ..."
+_MODAL = re.compile(words(*function_words("would")).pattern + r"|\b\w+(?:ría|rían|rait|raient)\b"
+                    r"|\b(?:würden?|könnte[n]?|sollte[n]?|wäre[n]?|cuanto|je\s+(?:mehr|höher|niedriger|weniger))\b", I)
 
 
 def heading_of(line: str) -> tuple[int, str] | None:
