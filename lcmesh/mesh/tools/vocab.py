@@ -302,12 +302,12 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     "supply_setpoint": _SUPPLY_SETPOINT,
     "supply": (*_SUPPLY_SETPOINT, r"supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature",
                r"coolant[\s-]+(?:supply[\s-]+)?temperature", r"\bsupply\b", r"\bcoolant\b",
-               r"\bVL\b(?![\s-]*\d)"),  # German shorthand: Vorlauf
+               r"\bVL\b", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b"),  # German shorthand (Vorlauf); a bare SP item
     "flow": (r"\bflow(?:[\s-]+rate)?\b", r"\bpump[\s-]+speed\b", r"\bQ_?cdu\b", r"\bmass flow\b"),
     "dp": (r"\bdp\b", r"Δ\s?p\b", r"\bdelta[\s-]?p\b", r"differential[\s-]+pressure", r"\bpressure\b", "pump head"),
-    "tower": (r"cooling[\s-]+towers?", r"\btowers?\b", r"\bCTs?\b", _TOWER_WATER, r"\bKT\b(?![\s-]*\d)"),
+    "tower": (r"cooling[\s-]+towers?", r"\btowers?\b", r"\bCTs?\b", _TOWER_WATER, r"\bKT\b"),
     # "the tower fans slowed down" is about the fans, not the leaving-water setpoint
-    "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b", r"\bKT\b(?![\s-]*\d)",
+    "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b", r"\bKT\b",
                        r"towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)"),
     "valve": (r"\bvalves?\b", r"\bvent(?=\s*[=:])", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
               r"\bshare of (?:the )?flow\b", r"\bof (?:the )?(?:\w+ )?flow\b", r"\bflow share\b",
@@ -319,7 +319,7 @@ VALVE_WORDS = {
     "es": ("válvulas?", "fracci(?:ón|ones)", r"recib\w*", "aperturas?", "reparto", r"repart\w*", r"distribu\w*",
            r"(?:cuota|parte)\s+del\s+caudal", r"del\s+caudal", "abierta", "abierto", "abrió", "abre", "cerrada",
            "cerrado", "cerró", "cierra", r"estrangul\w*"),
-    "de": ("ventile?", r"ventil(?!ator|ador)\w+", "ventilanteile?", "erhält", "bekommt", r"anteile?", r"öffnung\w*", "aufteilung", r"verteil\w*",
+    "de": ("ventile?", r"ventil(?!ator|ador)\w+", r"\w+ventile?\w*", "ventilanteile?", "erhält", "bekommt", r"anteile?", r"öffnung\w*", "aufteilung", r"verteil\w*",
            r"des\s+durchflusses", r"durchflussanteile?", "geöffnet", r"öffnet", "geschlossen", r"schließt",
            r"gedrosselt", r"drosselt"),
     "fr": ("vannes?", "fractions?", r"ouvertures?", "répartition", r"part\s+de\s+débit", r"reçoi\w*", r"répart\w*", r"distribu\w*", r"(?:part\s+)?du\s+débit",
@@ -380,8 +380,8 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
               "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
               "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"identisch\w*"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers", r"identique\w*", r"équiréparti\w*")},
-    "each": {"en": ("each", "every", "all"), "es": ("cada", "todas", "todos"), "de": (r"jede[nrs]?", "alle", "je"),
-             "fr": ("chaque", "chacune?", "toutes", "tous")},
+    "each": {"en": ("each", "every", "all", "everywhere", "across the board"), "es": ("cada", "todas", "todos"),
+             "de": (r"jede[nrs]?", "alle", "je", "überall"), "fr": ("chaque", "chacune?", "toutes", "tous", "partout")},
     # "its valve ...": the branch the previous sentence was about
     "its": {"en": ("it", "its"), "es": ("su", "sus"), "de": (r"sein\w*", r"ihr\w*"), "fr": ("son", "sa", "ses")},
     # "more flow", "a larger share", "less coolant"

@@ -134,6 +134,7 @@ def _valves_covered(ctx: Context) -> set[int]:
     covered: set[int] = set()
     last: int | None = None  # the one branch the previous sentence was about, for "its valve ..."
     previous_valves = False  # the previous sentence talked about valves: "Branches 2 and 3 stay at 0.32." goes on
+    plural_before = False
     rounded = {m.start for m in rounded_shares(ctx)}
     for s in ctx.sentences:
         before_sentence = len(covered)
@@ -172,17 +173,19 @@ def _valves_covered(ctx: Context) -> set[int]:
                     or stated:
                 covered.add(j)
         previous_valves = has_valve_word or len(covered) > before_sentence
+        plural_before = bool(_PLURAL_VALVES.search(s.text))  # "¿Las válvulas?" "Las tres siguen al 33 %"
         if not has_valve_word:
             continue
         fractions = [m for m in ctx.numbers_in(s.start, s.end) if any(q == "fraction" for q, _, _ in m.interpretations)]
-        if _in_order(ctx, fractions, valves) or _valve_list(ctx, s, fractions, valves.size):
+        if _in_order(ctx, fractions, valves) or _valve_list(ctx, s, ctx.numbers_in(s.start, s.end), valves.size):
             covered.update(range(valves.size))
         equal = float(np.ptp(valves)) < 0.01
         given = {round(m.value, 6) for m in fractions if m.unit in ("", "%")}
         if not mentions and tx.EACH.search(s.text) and len(given) == 1:
             covered.update(range(valves.size))  # "vannes à 0,5 chacune": every valve is given (bounds judge 0,5)
         one_share = bool(fractions) and all(ctx.matches(m, "fraction", valves[0]) for m in fractions) \
-            and bool(_PLURAL_VALVES.search(s.text)) and not any(b.start < fractions[-1].start for b in mentions)
+            and (bool(_PLURAL_VALVES.search(s.text)) or plural_before) \
+            and not any(b.start < fractions[-1].start for b in mentions)
         if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and fractions
                                                                      and ctx.matches(fractions[0], "fraction", valves[0]))):
             # "split evenly for branch 1 and branch 3" explains those two; with no branches named its scope, every one

@@ -106,6 +106,20 @@ def _decimal_commas(text: str, language: str = "en") -> str:
     return _DECIMAL_COMMA.sub(repl, _LEADING_ZERO_COMMA.sub("0.", text))
 
 
+_KEY_UNITS = {"c": "°C", "f": "°F", "k": "K", "kw": "kW", "mw": "MW", "w": "W", "psi": "psi", "kpa": "kPa", "pa": "Pa",
+              "pct": "%", "kg_s": "kg/s"}  # fmt: skip
+
+
+def _with_key_unit(key: str, value):
+    """A JSON value whose key ends in its unit ("supply_sp_c": 30.0, "vorlauf_sollwert_f": 86.0) keeps the unit."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return value
+    for suffix, unit in sorted(_KEY_UNITS.items(), key=lambda kv: -len(kv[0])):
+        if key.lower().endswith("_" + suffix):
+            return f"{value} {unit}"
+    return value
+
+
 def _flatten_json(text: str) -> str:
     """A JSON object in the text becomes one "key: values." line per object holding values (nested keys joined),
     so "valve_2": "0.25 -> 0.26 (opened)" and {"now": 0.29, "was": 0.31, "change": "closed"} read as sentences."""
@@ -121,7 +135,7 @@ def _flatten_json(text: str) -> str:
     lines: list[str] = []
 
     def walk(obj: dict, path: list[str]) -> None:
-        leaves = [(k, ", ".join(map(str, v)) if isinstance(v, list) else v) for k, v in obj.items()
+        leaves = [(k, _with_key_unit(k, ", ".join(map(str, v)) if isinstance(v, list) else v)) for k, v in obj.items()
                   if not isinstance(v, dict) and not (isinstance(v, list) and any(isinstance(x, (dict, list)) for x in v))]
         change = [str(v) for k, v in leaves if k.lower() in ("change", "direction")]
         cells = [str(v) if _GENERIC_HEADERS.match(k) else f"{k} {v}" for k, v in leaves
