@@ -148,14 +148,14 @@ _EXPECT = {
     ("supply", "down"): {"temp": "down", "fan": "up", "energy": "up"},
     ("flow", "up"): {"temp": "down", "pump": "up", "energy": "up"},
     ("flow", "down"): {"temp": "up", "pump": "down", "energy": "down"},
-    ("valve", "up"): {"temp": "down"},
-    ("valve", "down"): {"temp": "up"},
+    ("valve", "up"): {"temp": "down", "pump": "up"},
+    ("valve", "down"): {"temp": "up", "pump": "down"},
     ("tower", "up"): {"fan": "down", "energy": "down", "temp": "up"},
     ("tower", "down"): {"fan": "up", "energy": "up", "temp": "down"},
 }  # fmt: skip
 _SUPPLY_CAUSE = re.compile(
     tx.SUPPLY_SETPOINT.pattern + r"|supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature|coolant[\s-]+temperature"
-    r"|\bsupply\b",
+    r"|\bsupply\b|" + tx.SUPPLY_ANY.pattern,
     re.I,
 )
 _CAUSE_PATTERNS = (("supply", _SUPPLY_CAUSE),
@@ -231,7 +231,7 @@ def _causes(ctx: Context, s: tx.Sentence) -> list[tuple[str, str, int, int]]:
 
 
 def _effect_direction(t: str, a: int, b: int, kind: str) -> tuple[str, int] | None:
-    """Direction word within three words of a target (before or after it)."""
+    """Direction word within five words of a target (before or after it), not across "but" or a comma."""
     best = None
     for pol, table in (("up", tx.EFFECT_UP), ("down", tx.EFFECT_DOWN)):
         for w in table[kind].finditer(t):
@@ -243,7 +243,7 @@ def _effect_direction(t: str, a: int, b: int, kind: str) -> tuple[str, int] | No
                 continue
             if tx.EFFECT_BREAK.search(t, *gap):
                 continue
-            if dist <= 3 and (best is None or dist < best[0]):
+            if dist <= 5 and (best is None or dist < best[0]):
                 best = (dist, pol, w.start())
     return None if best is None else (best[1], best[2])
 

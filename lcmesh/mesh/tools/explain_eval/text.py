@@ -446,7 +446,7 @@ CAUSE_ADJ_DOWN = re.compile(
 )
 # the same after the dimension word: "un Δp plus élevé", "una consigna más alta", "une consigne de départ plus basse"
 CAUSE_AFTER_UP = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+(?:élevée?s?|haute?s?)|supérieure?s?|más\s+alt[oa]s?|"
-                            r"higher|höher\w*)\b", I)
+                            r"higher|höher\w*|(?:this|so|that)\s+high)\b", I)
 CAUSE_AFTER_DOWN = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+basse?s?|inférieure?s?|más\s+baj[oa]s?|lower|"
                               r"niedriger\w*|tiefer\w*)\b", I)
 TARGETS = {
@@ -460,7 +460,7 @@ TARGETS = {
                     r"refroid))"),
     "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)",
                  r"(?:potencia\s+de\s+(?:los\s+)?)?ventiladores", r"lüfter(?:leistung)?",
-                 r"(?:puissance\s+des\s+)?ventilateurs"),
+                 r"(?:puissance\s+des\s+)?ventilateurs", r"ventilador(?:es)?", r"ventilator\w*", r"lüfter\w*"),
     "pump": words(r"pump(?:ing)?[\s-]+(?:power|energy|work)", r"potencia\s+de\s+(?:la\s+)?bomba",
                   r"pumpenleistung", r"puissance\s+de\s+(?:la\s+)?pompe", "pumps?", "bombas?", "pumpen?", "pompes?"),
     "energy": words("energy", "electricity", r"power\s+(?:use|draw|consumption)", "energía", "energie", "énergie",
@@ -476,7 +476,8 @@ EFFECT_UP = {
                    r"aufheiz\w*", r"heiz\w*"),
     "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
                     "more", "costs?", "adds?", "cuesta", "kostet", "coûte", r"trabaj\w*\s+más", r"travaill\w*\s+plus",
-                    r"mehr\s+arbeiten", r"cost\w*", r"coût\w*", r"kost\w*", r"consum\w*\s+más", r"más\s+consumo"),
+                    r"mehr\s+arbeiten", r"cost\w*", r"coût\w*", r"kost\w*", r"consum\w*\s+más", r"más\s+consumo",
+                    r"gast\w*", r"up"),
 }  # fmt: skip
 # an effect word reaches its target only within its own part of the sentence: "warms the supply water but reduces
 # fan power" says nothing of the water going down
@@ -488,7 +489,7 @@ EFFECT_DOWN = {
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
                     "idles?", "ahorra", "spart", "économise", r"trim\w*", r"relie\w*", r"ahorr\w*", r"spar\w*",
                     r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
-                    r"reducir\w*", r"verringer\w*"),
+                    r"reducir\w*", r"verringer\w*", r"reduzier\w*", "down", r"gesenkt"),
 }  # fmt: skip
 EFFECT_UP["heat"] = words("warm(?:s|ed|ing|er)?", "hotter", r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
                           r"más\s+calient\w*", r"plus\s+chaud\w*", r"heat(?:s|ed|ing)?\s+up")
