@@ -511,7 +511,7 @@ DIRECTION_STEMS: dict[str, tuple[str, ...]] = {  # finite forms and participles 
            "hob", r"aufgemacht\w*", r"geöffnet\w*", r"öffne(?:t|te|ten)", r"relev(?:é|ée|és|ées|e|ent)", r"relève\w*",
            r"remont(?:e|ent|é|ée)", r"mont(?:e|ent|é|ée)", r"augment(?:e|ent|é|ée|és|ées)", r"rehauss(?:e|é|ée)",
            r"ouvr(?:e|ent)", r"ouvert\w*"),
-    "down": (r"baj(?:an|ó|aron|ada|ado|amos|ando)", r"reduc(?:e|en|ido|ida)", r"redujo|redujeron",
+    "down": (r"baj(?:an|ó|aron|ada|ado|amos|ando)", r"baja(?=\s+(?:a|de|hasta|un|una)\b)", r"reduc(?:e|en|ido|ida)", r"redujo|redujeron",
              r"disminu(?:ye|yen|yó|yeron|ido|ida)", r"desciende|descendió|descendieron", r"cerr(?:ó|aron|ada|ado|ando)",
              r"cierr(?:a|an)", r"gesenkt\w*", r"senk(?:t|te|ten)", r"abgesenkt\w*", "runter", r"zugemacht\w*",
              r"geschlossen\w*", r"schließt|schloss", r"gedrosselt\w*", r"drossel(?:t|te)", r"verringert\w*",

@@ -472,7 +472,7 @@ _FALL = ("lower(?:s|ed|ing)?", "drop(?:s|ped)?", "decreas(?:e|es|ed|ing)", "redu
          "reduce", "baja", "disminuye", "senkt", "sinkt", "réduit", "diminue", "baisse")  # fmt: skip
 EFFECT_UP = {
     "temp": words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?",
-                   r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer", r"más\s+calient\w*", r"plus\s+chaud\w*",
+                   r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
                    r"aufheiz\w*", r"heiz\w*"),
     "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
                     "more", "costs?", "adds?", "cuesta", "kostet", "coûte", r"trabaj\w*\s+más", r"travaill\w*\s+plus",
@@ -484,17 +484,16 @@ EFFECT_UP = {
 EFFECT_BREAK = re.compile(r"\b(?:but|pero|aber|mais|while|whereas|mientras|während|tandis|yet|sino|sondern)\b|[;,]", I)
 EFFECT_DOWN = {
     "temp": words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
-                   r"more\s+cooling", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter", r"más\s+fr[ií]\w*",
-                   r"plus\s+froid\w*"),
+                   r"more\s+cooling", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter"),
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
                     "idles?", "ahorra", "spart", "économise", r"trim\w*", r"relie\w*", r"ahorr\w*", r"spar\w*",
                     r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
                     r"reducir\w*", r"verringer\w*", r"reduzier\w*", "down", r"gesenkt"),
 }  # fmt: skip
 EFFECT_UP["heat"] = words("warm(?:s|ed|ing|er)?", "hotter", r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
-                          r"más\s+calient\w*", r"plus\s+chaud\w*", r"heat(?:s|ed|ing)?\s+up")
+                          r"heat(?:s|ed|ing)?\s+up")
 EFFECT_DOWN["heat"] = words("cool(?:s|ed|er)?", "colder", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter",
-                            r"más\s+fr[ií]\w*", r"plus\s+froid\w*", r"senkt\s+(?:dessen|seine|ihre|die)\s+temperatur")
+                            r"senkt\s+(?:dessen|seine|ihre|die)\s+temperatur")
 REASON = words("because", "since", "due to", "as a result of", "given")
 # water said to leave the tower colder than the wet bulb, however it is put: "below the wet bulb", "colder than the
 # 18.8 °C wet bulb", "más fría que el bulbo húmedo", "kälter als die Feuchtkugel", "plus froide que le bulbe humide"
