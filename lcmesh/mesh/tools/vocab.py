@@ -257,7 +257,7 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "consigne tour": ("lw_setpoint", "lw"),
     "consigne d'eau sortie": ("lw_setpoint", "lw"), "consigne de sortie": ("lw_setpoint", "lw"),
     "consigne depart": ("supply_setpoint", "supply"), "depart": ("supply_temp", "supply_setpoint", "supply"),
-    "sortie tour": ("leaving_water", "lw_setpoint", "lw"), "tour consigne sortie": ("lw_setpoint", "lw"),
+    "tour consigne sortie": ("lw_setpoint", "lw"),
     "consigne de sortie de tour": ("lw_setpoint", "lw"), "consigne départ": ("supply_setpoint", "supply"),
 }  # fmt: skip
 def fold_accents(text: str) -> str:

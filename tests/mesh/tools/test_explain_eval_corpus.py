@@ -130,3 +130,16 @@ def test_the_tuning_part_is_on_dev_decisions_by_other_authors():
     dev3, fresh3 = load_fresh(name="dev3.jsonl"), load_fresh(name="fresh3.jsonl")
     assert {records[t["record_key"]]["split"] for t in dev3} == {"dev"}
     assert not {t["source"] for t in dev3} & {t["source"] for t in fresh3}
+
+
+def test_the_tuning_part_keeps_its_figures_and_renders():
+    """dev3 was tuned on (in-sample, not evidence): a regression check on its false flags, and issue 35's table renders
+    a part's figures per flag kind, language and style family (no held-out part is scored here)."""
+    from lcmesh.mesh.tools.explain_eval.bench import _summarized, issue35_markdown, style_family
+
+    dev3 = _summarized(corpus_verdict("dev3"))
+    assert dev3["correct_flagged_share"] <= 0.05 and set(dev3["per_family"]) == {"free-form", "structured"}
+    assert style_family("markdown table") == "structured" and style_family("handover e-mail") == "free-form"
+    text = "\n".join(issue35_markdown({"fresh3": dev3, "dev3": dev3}))
+    assert "| correct texts with any flag |" in text and "| physics: recall / precision |" in text
+    assert "free-form" in text and "de " in text
