@@ -81,14 +81,14 @@ ORDINAL_WORDS: dict[str, int] = {
     "cuarta": 4, "cuarto": 4, "quinta": 5, "quinto": 5,
     "erste": 1, "ersten": 1, "erster": 1, "zweite": 2, "zweiten": 2, "zweiter": 2, "dritte": 3, "dritten": 3,
     "dritter": 3, "vierte": 4, "vierten": 4, "vierter": 4, "fünfte": 5, "fünften": 5,
-    "premier": 1, "première": 1, "deuxième": 2, "seconde": 2, "second": 2, "troisième": 3, "quatrième": 4,
+    "premier": 1, "première": 1, "deuxième": 2, "seconde": 2, "troisième": 3, "quatrième": 4,
     "cinquième": 5,
 }  # fmt: skip
 COUNT_WORDS: dict[str, int] = {
     "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8,
     "dos": 2, "tres": 3, "cuatro": 4, "cinco": 5, "seis": 6,
     "zwei": 2, "drei": 3, "vier": 4, "fünf": 5, "sechs": 6,
-    "deux": 2, "trois": 3, "quatre": 4, "cinq": 5, "six": 6,
+    "deux": 2, "trois": 3, "quatre": 4, "cinq": 5,
 }  # fmt: skip
 # nouns a count or an index goes with ("3 branches", "rama 2") besides the entity words
 COUNTED_NOUNS = ("cells?", "valves?", "pumps?", "agents?", "steps?", "nodes?", "decimals?", "digits?", "fans?",
