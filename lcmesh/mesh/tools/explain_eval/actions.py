@@ -173,21 +173,27 @@ def _valves_covered(ctx: Context) -> set[int]:
                     or stated:
                 covered.add(j)
         previous_valves = has_valve_word or len(covered) > before_sentence
-        plural_before = bool(_PLURAL_VALVES.search(s.text))  # "¿Las válvulas?" "Las tres siguen al 33 %"
-        if not has_valve_word:
+        asked = plural_before  # the previous sentence asked about the valves: "Et les vannes ?" "Toujours à un tiers"
+        plural_before = bool(_PLURAL_VALVES.search(s.text)) and s.text.rstrip().endswith("?")  # "¿Las válvulas?"
+        if not (has_valve_word or asked or _PLURAL_BRANCHES.search(s.text)):
             continue
+        specific = [b for b in mentions if not _COUNT_BEFORE.search(ctx.rec.text, max(0, b.start - 12), b.start)]
+        if not specific and (_PLURAL_VALVES.search(s.text) or _PLURAL_BRANCHES.search(s.text) or asked) \
+                and tx.ANY_DIRECTION.search(s.text) and _HELD_ALL.search(s.text) \
+                and not any(m.unit == "%" or (m.unit == "" and m.value <= 1) for m in ctx.numbers_in(s.start, s.end)):
+            covered.update(range(valves.size))  # "Ventile unverändert", "todas siguen con el mismo reparto"
         fractions = [m for m in ctx.numbers_in(s.start, s.end) if any(q == "fraction" for q, _, _ in m.interpretations)]
         if _in_order(ctx, fractions, valves) or _valve_list(ctx, s, ctx.numbers_in(s.start, s.end), valves.size):
             covered.update(range(valves.size))
         equal = float(np.ptp(valves)) < 0.01
-        given = {round(m.value, 6) for m in fractions if m.unit in ("", "%")}
+        given = {round(m.value, 6) for m in fractions if (m.unit == "" and m.value <= 1) or m.unit == "%"}
         if not mentions and tx.EACH.search(s.text) and len(given) == 1:
             covered.update(range(valves.size))  # "vannes à 0,5 chacune": every valve is given (bounds judge 0,5)
         one_share = bool(fractions) and all(ctx.matches(m, "fraction", valves[0]) for m in fractions) \
             and (bool(_PLURAL_VALVES.search(s.text)) or plural_before) \
             and not any(b.start < fractions[-1].start for b in mentions)
-        if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and fractions
-                                                                     and ctx.matches(fractions[0], "fraction", valves[0]))):
+        if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and any(
+                ctx.matches(m, "fraction", valves[0]) for m in fractions))):
             # "split evenly for branch 1 and branch 3" explains those two; with no branches named its scope, every one
             scope = [b for b in mentions if _SCOPE_BEFORE.search(ctx.rec.text, max(0, b.start - 12), b.start)]
             covered.update({ctx.entity(b) for b in scope} if scope else range(valves.size))  # fmt: skip
@@ -197,21 +203,62 @@ def _valves_covered(ctx: Context) -> set[int]:
 _THE_VALVE = re.compile(r"\b(?:the\s+valve|das\s+ventil|la\s+vanne|la\s+válvula|sein\s+ventil|su\s+válvula|sa\s+vanne)\b",
                         re.IGNORECASE)  # fmt: skip
 _SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+)+\s*%")  # "79/16/5 %": each a percentage
+_PLURAL_BRANCHES = re.compile(r"\b(?:branches|ramas|zweige|str[äa]nge)\b", re.IGNORECASE)
+# every valve held, said of all of them: "unchanged", "sin cambios", "unverändert", "inchangées", "the same split"
+_HELD_ALL = re.compile(r"\b(?:unchanged|held|no\s+change|same\s+(?:split|distribution)|sin\s+cambios?|igual(?:es)?|"
+                       r"mismo\s+reparto|quiet[oa]s?|unverändert|gehalten|gleiche?\s+aufteilung|inchangée?s?|"
+                       r"maintenue?s?|même\s+répartition|ne\s+bougent\s+pas)\b", re.IGNORECASE)  # fmt: skip
+_COUNT_BEFORE = re.compile(r"(?:all|alle|todas|las|los|toutes|les|die|the)\s+(?:\w+\s+)?$", re.IGNORECASE)
 _PLURAL_VALVES = re.compile(r"\b(?:valves|válvulas|ventile|vannes)\b", re.IGNORECASE)
 _LIST_JOIN = re.compile(r"\s*(?:/|,|;|-|–|\band\b|\by\b|\bund\b|\bet\b|\be\b)\s*", re.IGNORECASE)
 
 
 def _valve_list(ctx: Context, s: tx.Sentence, fractions: list, n: int) -> bool:
     """A valve sentence listing one bare fraction per branch in a row ("Ventile 0,69 / 0,053 / 0,169"): it states the
-    split (grounding and the bounds judge its values)."""
+    split (grounding, the bounds and ``check_valve_lists`` judge its values)."""
+    return _valve_run(ctx, fractions, n) is not None
+
+
+def _valve_run(ctx: Context, numbers: list, n: int) -> list | None:
     text = ctx.rec.text
-    bare = [m for m in fractions if (m.unit == "" and m.decimals >= 1 and 0 <= m.value <= 1) or m.unit == "%"
+    bare = [m for m in numbers if (m.unit == "" and m.decimals >= 1 and 0 <= m.value <= 1) or m.unit == "%"
             or (m.unit == "" and _SLASH_PERCENT.match(text, m.end))]  # fmt: skip
     for k in range(len(bare) - n + 1):
         run = bare[k : k + n]
-        if all(_LIST_JOIN.fullmatch(text, a.end, z.start) for a, z in zip(run, run[1:])):
-            return True
-    return False
+        if all(_LIST_JOIN.fullmatch(text, a.unit_end if a.unit_end > 0 else a.end, z.start)
+               for a, z in zip(run, run[1:])):
+            return run
+    return None
+
+
+def check_valve_lists(ctx: Context) -> list[Flag]:
+    """A valve list in branch order ("Valves 33 % / 34 % / 34 %", "Ventile 0,69 / 0,053 / 0,169") gives branch k its
+    k-th value: each must be that valve's fraction (now or before) at its precision, else it is ungrounded. A list that
+    sums to more than 1 is the bounds check's; percentages rounded to sum to 100 % are the split they round."""
+    valves, rec = ctx.rec.valves, ctx.rec
+    if valves is None or valves.size < 2:
+        return []
+    rounded = {m.start for m in rounded_shares(ctx)}
+    previous = rec.valves - rec.valve_changes if rec.valve_changes is not None else None
+    flags = []
+    for s in ctx.sentences:
+        if not (tx.VALVE.search(s.text) or "VALVE" in s.heading) or ctx.branches_in(s.start, s.end):
+            continue
+        run = _valve_run(ctx, ctx.numbers_in(s.start, s.end), valves.size)
+        if run is None or any(m.start in rounded for m in run):
+            continue
+        if sum(m.value / (100.0 if m.unit == "%" or _SLASH_PERCENT.match(rec.text, m.end) else 1.0)
+               for m in run) > 1.0 + ctx.cfg.bounds.valve_sum_tol + 0.005 * valves.size:
+            continue  # too much in all: out of bounds
+        for j, m in enumerate(run):
+            share = m.value / 100.0 if m.unit == "%" or _SLASH_PERCENT.match(rec.text, m.end) else m.value
+            ok = [valves[j]] + ([previous[j]] if previous is not None else [])
+            half = 0.5 * 10.0 ** (-m.decimals) / (100.0 if share != m.value else 1.0)
+            if not any(abs(share - v) <= max(half * 1.0001, ctx.cfg.fraction_tol) for v in ok):
+                flags.append(ctx.fail("equals", "ungrounded_number", f"'{m.text}' is given for the valve of "
+                                      f"{ctx.label(j)} (its place in the list) but that valve is {valves[j]:.3f}",
+                                      m.text, start=m.start, end=m.end, entity=ctx.label(j)))  # fmt: skip
+    return flags
 
 
 _SCOPE_BEFORE = re.compile(r"\b(?:for|across|between|among)\s+(?:the\s+)?$", re.I)

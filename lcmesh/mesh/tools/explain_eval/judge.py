@@ -19,7 +19,9 @@ from pydantic import ValidationError
 from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.claims import Flag
 from lcmesh.mesh.tools.explain_eval import text as tx
-from lcmesh.mesh.tools.explain_eval.actions import Context, check_coverage, check_direction, rounded_shares
+from lcmesh.mesh.tools.explain_eval.actions import (
+    Context, check_coverage, check_direction, check_valve_lists, rounded_shares,
+)  # fmt: skip
 from lcmesh.mesh.tools.explain_eval.consistency import check_bounds, check_physics, check_ranking
 from lcmesh.mesh.tools.explain_eval.grounding import _TOPIC_NAMES, ValuePool, check_grounding
 from lcmesh.mesh.tools.explain_eval.numbers import extract_numbers
@@ -62,7 +64,8 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
                                 frozenset(m.start for m in rounded_shares(ctx)))  # fmt: skip
     dims, coverage_flags = check_coverage(ctx)
     checked, consistent, direction_flags = check_direction(ctx)
-    later = coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx)
+    later = coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx) \
+        + check_valve_lists(ctx)
     # a claim fails once, with its most specific flag: a setpoint the text gives outside the plant's range is
     # out_of_bounds, not also an ungrounded number
     out_of_range = [(c.start, max(c.end, c.start + 1)) for c in ctx.claims

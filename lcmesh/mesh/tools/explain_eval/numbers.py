@@ -30,6 +30,7 @@ _NUM = re.compile(
 )
 _DATE = re.compile(r"\b\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2})?Z?)?\b")
 _SHARE_FRACTION = re.compile(r"(?<![\d/])(?<!\d[.,])1/[2-9](?![\d/])(?![.,]\d)")
+_PERCENT_LIST_AFTER = re.compile(r"(?:\s*/\s*\d+(?:[.,]\d+)?)+\s*%")
 _CLOCK = re.compile(r"\b\d{1,2}:\d{2}(?::\d{2})?\b")
 # words an index follows ("branch 2", "rama 2", "Schrank 3", "step 4"): the plant's entities in the four languages
 # (vocab.py), and English document words
@@ -140,6 +141,8 @@ def _classify(m: NumberMention, text: str, masked: str, previous: NumberMention 
         m.role = "time"
     elif m.unit or m.decimals > 0:
         return
+    elif _PERCENT_LIST_AFTER.match(masked, m.end):
+        return  # "válvulas 33/33/33 %": shares, each a percentage
     elif (word := _WORD_BEFORE.search(before)) and _INDEX_WORD.fullmatch(word.group(1)):
         m.role = "index"
     elif previous is not None and previous.role == "index" and _CHAIN.match(masked[previous.end : m.start]):

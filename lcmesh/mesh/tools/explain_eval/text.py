@@ -163,6 +163,10 @@ _IS_THE_N = re.compile(r"\b(?:es|est|ist)\s+(?:la|el|le|der|die)\s+(?=\d+\b(?![.
 _BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s?)\b", I)
 
 
+# "rama_a", "Zweig B", "branch C" as keys or labels: branches 1, 2, 3
+_LETTER_BRANCH = re.compile(r"\b(ramas?|zweige?|branch(?:es)?|branches?)[\s_-]+([A-Ca-c])\b(?=\s*[:=,;)\]]|\s+\d|$)")
+
+
 def _is_the_branch(line: str) -> str:
     out, last = [], 0
     for m in _IS_THE_N.finditer(line):
@@ -200,7 +204,7 @@ def normalize(text: str, language: str = "en") -> str:
         if not s or heading_of(line) is not None:
             out.append(line)
             continue
-        line = _is_the_branch(line)
+        line = _is_the_branch(_LETTER_BRANCH.sub(lambda m: f"{m.group(1)} {' abc'.index(m.group(2).lower())}", line))
         if len(re.findall(r"[A-Za-z][\w.-]*\s*=", line)) >= 3:
             line = _KV_PAIR_GAP.sub("; ", line.strip())
         for pattern, repl in _SHORTHAND:
