@@ -302,7 +302,7 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     "supply_setpoint": _SUPPLY_SETPOINT,
     "supply": (*_SUPPLY_SETPOINT, r"supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature",
                r"coolant[\s-]+(?:supply[\s-]+)?temperature", r"\bsupply\b", r"\bcoolant\b",
-               r"\bVL\b", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b"),  # German shorthand (Vorlauf); a bare SP item
+               r"(?<![^\W_])VL(?![^\W_])", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b"),  # German shorthand (Vorlauf); a bare SP item
     "flow": (r"\bflow(?:[\s-]+rate)?\b", r"\bpump[\s-]+speed\b", r"\bQ_?cdu\b", r"\bmass flow\b"),
     "dp": (r"\bdp\b", r"Δ\s?p\b", r"\bdelta[\s-]?p\b", r"differential[\s-]+pressure", r"\bpressure\b", "pump head"),
     "tower": (r"cooling[\s-]+towers?", r"\btowers?\b", r"\bCTs?\b", _TOWER_WATER, r"\bKT\b"),
@@ -395,7 +395,7 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
              "de": (r"weniger\s+(?:\w+\s+)?(?:durchfluss|kühlmittel)", r"(?:kleinere[nrs]?|niedrigere[nrs]?)\s+(?:anteil|öffnung)"),
              "fr": (r"moins\s+de\s+(?:débit|fluide)", r"(?:une\s+)?plus\s+petite\s+(?:part|ouverture)")},
     # a valve claim made against the other branches ("more than the others") or the load ("above its load share")
-    "than_others": {"en": ("than", "equal", "even", "average", "others?"),
+    "than_others": {"en": ("than", "equal", r"even(?!\s+(?:though|if|so|when|as|more|less))", "average", "others?"),
                     "es": (r"que\s+(?:las|los)\s+(?:demás|otr[oa]s)", "media", "promedio"),
                     "de": ("als", r"durchschnitt\w*", r"andere[mns]?"),
                     "fr": (r"que\s+les\s+autres", "moyenne")},

@@ -190,7 +190,7 @@ def _valves_covered(ctx: Context) -> set[int]:
         if not mentions and tx.EACH.search(s.text) and len(given) == 1:
             covered.update(range(valves.size))  # "vannes à 0,5 chacune": every valve is given (bounds judge 0,5)
         one_share = bool(fractions) and all(ctx.matches(m, "fraction", valves[0]) for m in fractions) \
-            and (bool(_PLURAL_VALVES.search(s.text)) or plural_before) \
+            and (bool(_PLURAL_VALVES.search(s.text)) or asked) \
             and not any(b.start < fractions[-1].start for b in mentions)
         if equal and (tx.EQUAL_SPLIT.search(s.text) or one_share or (tx.EACH.search(s.text) and any(
                 ctx.matches(m, "fraction", valves[0]) for m in fractions))):
@@ -341,6 +341,7 @@ def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -
                for dim, _, _ in direction_claims(ctx, c, include_valves=False))  # fmt: skip
 
 
+_BARE_SETPOINT = re.compile(r"^\W*(?:set[\s-]?point|SP|consigna|consigne|sollwert)\W*(?:=|:)?\s*[-+]?\d", re.IGNORECASE)
 _SETPOINT_WORD = re.compile(vocab.SETPOINT_WORD.pattern + r"|\bsoll\b|\bcons\b", re.IGNORECASE)
 
 
@@ -376,6 +377,10 @@ def _named_with_value(ctx, s: tx.Sentence, pattern, quantity, change_key) -> boo
             if change_key != "supply" or any(ctx.matches(m, quantity, x) for x in setpoints):
                 return True
             if tx.SUPPLY_SETPOINT.search(c.text) or _SETPOINT_WORD.search(c.text) or tx.ANY_DIRECTION.search(c.text):
+                return True
+    for c in _items(s):  # "| SP 30.0 C |": a bare setpoint item whose value is the supply setpoint's
+        if change_key == "supply" and _BARE_SETPOINT.match(c.text):
+            if any(ctx.matches(m, quantity, x) for m in ctx.numbers_in(c.start, c.end) for x in setpoints):
                 return True
     return False
 
