@@ -214,6 +214,7 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "retorno del agua caliente": ("htw_return_temp",), "en banda": ("in_band",),
     "dentro de la banda": ("in_band", "inside", "total", "band_low", "band_high"), "energía": _ENERGY,
     "diferencial de presión": ("dp", "dp_setpoint"), "salida de la torre": ("leaving_water", "lw_setpoint", "lw"),
+    "consigna de salida": ("lw_setpoint", "lw"),
     "salida de torre": ("leaving_water", "lw_setpoint", "lw"),
     # de
     "vorlauf": ("supply_temp", "supply_setpoint", "supply"), "vorlaufsollwert": ("supply_setpoint", "supply"),

@@ -251,7 +251,7 @@ def _effect_direction(t: str, a: int, b: int, kind: str) -> tuple[str, int] | No
 # --- bounds -------------------------------------------------------------------------------------
 
 
-_VALVE_BEFORE = re.compile(r"(?:valves?|fractions?|opening)\b[^.;]{0,25}$", re.I)
+_VALVE_BEFORE = re.compile(r"(?:" + tx.VALVE.pattern + r")[^.;]{0,40}$", re.I)  # a valve word in any of the four
 
 
 def check_bounds(ctx: Context) -> list[Flag]:
@@ -282,7 +282,7 @@ def check_bounds(ctx: Context) -> list[Flag]:
             flags.append(ctx.fail("bound", "out_of_bounds", f"branch {bm.raw} does not exist ({n} branches, numbered from {ctx.base})"))
     for s in ctx.sentences:
         for c in s.clauses:
-            if not re.search(r"\bvalves?\b|\bfractions?\b|\bopening\b", c.text, re.I):
+            if not tx.VALVE.search(c.text):
                 continue
             for m in ctx.numbers_in(c.start, c.end):
                 if not _VALVE_BEFORE.search(ctx.rec.text[c.start : m.start]):
@@ -395,8 +395,9 @@ def _stated_valves(ctx: Context) -> list[Flag]:
                     return [ctx.fail("bound", "out_of_bounds", f"the valve fractions '{text[run[0].start : run[-1].end]}' "
                                      "sum to more than 1", start=run[0].start, end=run[-1].end)]
         mentions = ctx.branches_in(s.start, s.end)
-        if not mentions and tx.EACH.search(s.text) and len({m.value for m in fractions}) == 1 \
-                and fractions[0].value * n > 1.0 + tol:
+        each = [m for m in ctx.numbers_in(s.start, s.end) if m.unit == "" and m.decimals >= 1 and 0 <= m.value <= 1]
+        if not mentions and tx.EACH.search(s.text) and len({m.value for m in each}) == 1 and each[0].value * n > 1.0 + tol:
+            fractions = each
             return [ctx.fail("bound", "out_of_bounds", f"'{fractions[0].text}' for each of {n} valves sums to "
                              f"{fractions[0].value * n:.2f}, more than 1", start=fractions[0].start,
                              end=fractions[0].end)]  # fmt: skip

@@ -213,6 +213,9 @@ _TOPIC_NAMES = re.compile(
 )
 
 
+_SETPOINT_AFTER = re.compile(r"\W*(?:set[\s-]?point|SP|consigna|consigne|soll(?:wert)?)\W*(?:de|of|à|a|en|bei|auf)?\s*$",
+                             re.IGNORECASE)  # fmt: skip
+_SUPPLY_NAME = re.compile(r"impulsi[oó]n|vorlauf\w*|d[ée]part|supply", re.IGNORECASE)
 _CLAUSE_END = re.compile(r"[.!?](?=\s)|[;|\n]")
 _LIST_ITEM_END = re.compile(r",\s|·|\s[–—-]\s")
 
@@ -235,6 +238,9 @@ def _topic_of(text: str, m: NumberMention) -> str | None:
     last = names[-1]
     if len(re.findall(r"[\w°%./-]+", before[last.end() :])) > 8:
         return None
+    if last.lastgroup == "other" and _SETPOINT_AFTER.match(before, last.end()):
+        # "Impulsión: consigna 12,1 °C", "Vorlauf: Sollwert 30 °C": the setpoint of the supply named before it
+        return "supply_setpoint" if _SUPPLY_NAME.fullmatch(last.group()) else None
     return last.lastgroup if last.lastgroup != "other" else None
 
 
