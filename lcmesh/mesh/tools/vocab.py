@@ -376,12 +376,13 @@ _SHARE_EN = r"\s+(?:\w+\s+)?(?:flow|coolant|share|fraction|opening)"
 SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     # the valves split equally
     "equal": {"en": (r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
-                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third", "⅓", r"identical\w*",
+                     "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third", r"a\s+third", "⅓", r"identical\w*",
                      r"(?<![\d/])(?<!\d[.,])1/3(?![\d/])(?![.,]\d)", r"thirds"),
               "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
               "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"identisch\w*"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers", r"identique\w*", r"équiréparti\w*")},
-    "each": {"en": ("each", "every", "all", "everywhere", "across the board"), "es": ("cada", "todas", "todos"),
+    "each": {"en": ("each", "every", "all", "everywhere", "across the board", r"[x×]\s?[2-9]"),
+             "es": ("cada", "todas", "todos"),
              "de": (r"jede[nrs]?", "alle", "je", "überall"), "fr": ("chaque", "chacune?", "toutes", "tous", "partout")},
     # "its valve ...": the branch the previous sentence was about
     "its": {"en": ("it", "its"), "es": ("su", "sus"), "de": (r"sein\w*", r"ihr\w*"), "fr": ("son", "sa", "ses")},

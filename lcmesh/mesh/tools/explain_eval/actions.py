@@ -321,7 +321,7 @@ def _in_order(ctx: Context, mentions: list[NumberMention], valves: np.ndarray) -
 
 def _scalar_covered(ctx, s: tx.Sentence, pattern, quantity, value, change_key) -> bool:
     if not pattern.search(s.text):
-        return False
+        return change_key == "supply" and _named_with_value(ctx, s, pattern, quantity, change_key)
     if _named_with_value(ctx, s, pattern, quantity, change_key):
         return True
     change = ctx.rec.changes.get(change_key)

@@ -167,6 +167,10 @@ _CLOSE = re.compile(r"\b(?:clos(?:e|es|ed|ing)|throttl(?:e|es|ed|ing)|narrow(?:s
                     r"|geschlossene?[nrs]?|drossel\w*|gedrosselt)\b", re.I)
 
 
+# a cause reaches an effect within its part of the sentence: not across ";" or "while / während / mientras / tandis"
+_CAUSE_BREAK = re.compile(r";|\b(?:while|whereas|während|mientras|tandis|alors\s+que|aunque|obwohl|although)\b", re.I)
+
+
 def check_physics(ctx: Context) -> list[Flag]:
     flags = []
     for s in ctx.sentences:
@@ -185,7 +189,7 @@ def check_physics(ctx: Context) -> list[Flag]:
             if any(c[2] <= m0 < c[3] for c in causes):
                 continue  # "supply temperature" is the cause here, not the effect
             first = min(e0, m0)
-            before = [c for c in causes if c[3] <= first]
+            before = [c for c in causes if c[3] <= first and not _CAUSE_BREAK.search(t, c[3], first)]
             if not before or tx.REASON.search(t[before[-1][3] : first]):
                 continue
             dim, cpol = before[-1][:2]

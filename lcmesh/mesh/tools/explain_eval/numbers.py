@@ -56,6 +56,7 @@ _RANGE_DASH_BEFORE = re.compile(r"\d[\s\u00a0]*$|[A-Za-z]$")
 _ORDINAL = re.compile(r"^(?:st|nd|rd|th)\b")
 _AND_OR = vocab.alternation(*vocab.function_words("and"), *vocab.function_words("or"))
 _CHAIN = re.compile(r"^[\s\u00a0]*(?:,|" + _AND_OR + r"|&|/|,[\s\u00a0]*" + _AND_OR + r"|to|through|-|–)[\s\u00a0]*$")
+_LIST_COMMA = re.compile(r"^,[\s\u00a0]*$")
 _RANGE = re.compile(r"^[\s\u00a0]*(?:-|–|—|to|and|/|y|und|et|a|à|bis|hasta)[\s\u00a0]*$")
 
 
@@ -154,9 +155,12 @@ def _classify(m: NumberMention, text: str, masked: str, previous: NumberMention 
 
 
 def _inherit_range_units(mentions: list[NumberMention], text: str) -> None:
-    for a, b in zip(mentions, mentions[1:]):
+    """A bare number before a range or list partner takes its unit ("20-40 °C", "304,3, 319,1 et 311,3 kW"), from the
+    last item of the list back to the first."""
+    for a, b in reversed(list(zip(mentions, mentions[1:]))):
         both_measures = a.role == b.role == "measure"
-        if both_measures and not a.unit and b.unit and _RANGE.match(text[a.end : b.start]):
+        if both_measures and not a.unit and b.unit and (_RANGE.match(text[a.end : b.start])
+                                                       or _LIST_COMMA.match(text[a.end : b.start])):  # fmt: skip
             a.unit = b.unit
 
 

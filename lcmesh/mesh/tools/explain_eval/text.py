@@ -259,10 +259,10 @@ def _row(cells: list[str], header: list[str]) -> str:
 _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
 # chat and log writers start sentences in lower case too ("dp held. torre sube a 29,0 °C"), but not after an
 # abbreviation ("cons. 18,0 °C", "approx. 3 K", "z. B.")
-_LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[a-zà-öø-ÿ])")
+_LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]*_]*\s+(?=[a-zà-öø-ÿ])")
 _ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|br|arm|cab|e\.g|i\.e|z\.\s?b|"
                            r"u\.\s?a|d\.\s?h|p\.\s?ej|c\.-à-d)\.)$", I)
-_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔΔ\"'(\[*•¿¡-])")
+_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]*_]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔΔ\"'(\[*•¿¡-])")
 _AND = vocab.alternation(*function_words("and"))
 _BRANCH_WORDS = vocab.alternation(*(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))
 _CLAUSE_SPLIT = re.compile(
@@ -450,9 +450,11 @@ CAUSE_ADJ_DOWN = re.compile(
 )
 # the same after the dimension word: "un Δp plus élevé", "una consigna más alta", "une consigne de départ plus basse"
 CAUSE_AFTER_UP = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+(?:élevée?s?|haute?s?)|supérieure?s?|más\s+alt[oa]s?|"
-                            r"higher|höher\w*|(?:this|so|that)\s+high)\b", I)
+                            r"higher|höher\w*|(?:this|so|that)\s+high|increase|rise|raise|bump|hike|aumento|subida|"
+                            r"erhöhung|anhebung|hausse|augmentation)\b", I)
 CAUSE_AFTER_DOWN = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+basse?s?|inférieure?s?|más\s+baj[oa]s?|lower|"
-                              r"niedriger\w*|tiefer\w*)\b", I)
+                              r"niedriger\w*|tiefer\w*|decrease|drop|cut|reduction|bajada|descenso|reducción|"
+                              r"absenkung|senkung|baisse|diminution)\b", I)
 TARGETS = {
     "temp": words("temperatures?", "temps?", "blades?", r"blade[\s-]+groups?", "chips?", "servers?", "GPUs?",
                    "components?", "hardware", r"hot\s?spots?",
@@ -481,7 +483,7 @@ EFFECT_UP = {
     "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
                     "more", "costs?", "adds?", "cuesta", "kostet", "coûte", r"trabaj\w*\s+más", r"travaill\w*\s+plus",
                     r"mehr\s+arbeiten", r"cost\w*", r"coût\w*", r"kost\w*", r"consum\w*\s+más", r"más\s+consumo",
-                    r"gast\w*", r"up"),
+                    r"gast\w*\s+más", r"up"),
 }  # fmt: skip
 # an effect word reaches its target only within its own part of the sentence: "warms the supply water but reduces
 # fan power" says nothing of the water going down
@@ -492,7 +494,7 @@ EFFECT_DOWN = {
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
                     "idles?", "ahorra", "spart", "économise", r"trim\w*", r"relie\w*", r"ahorr\w*", r"spar\w*",
                     r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
-                    r"reducir\w*", r"verringer\w*", r"reduzier\w*", "down", r"gesenkt"),
+                    r"reducir\w*", r"verringer\w*", r"reduzier\w*", "down", r"gesenkt", r"gast\w*\s+menos"),
 }  # fmt: skip
 EFFECT_UP["heat"] = words("warm(?:s|ed|ing|er)?", "hotter", r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
                           r"heat(?:s|ed|ing)?\s+up")
