@@ -303,14 +303,15 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     "supply_setpoint": _SUPPLY_SETPOINT,
     "supply": (*_SUPPLY_SETPOINT, r"supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature",
                r"coolant[\s-]+(?:supply[\s-]+)?temperature", r"\bsupply\b", r"\bcoolant\b",
-               r"(?<![^\W_])VL(?![^\W_])", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b"),  # German shorthand (Vorlauf); a bare SP item
+               r"(?<![^\W_])VL(?![^\W_])", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b", r"\bsup\.?\s+sp\b", r"\bsp\s+imp\b",
+               r"\b(?:cons|csg)\.?\s+alim\w*", r"\balim\b", r"\bvorl\.", r"\bimp\.?\s+sp\b"),  # German shorthand (Vorlauf); a bare SP item
     "flow": (r"\bflow(?:[\s-]+rate)?\b", r"\bpump[\s-]+speed\b", r"\bQ_?cdu\b", r"\bmass flow\b"),
     "dp": (r"\bdp\b", r"Δ\s?p\b", r"\bdelta[\s-]?p\b", r"differential[\s-]+pressure", r"\bpressure\b", "pump head"),
     "tower": (r"cooling[\s-]+towers?", r"\btowers?\b", r"\bCTs?\b", _TOWER_WATER, r"\bKT\b"),
     # "the tower fans slowed down" is about the fans, not the leaving-water setpoint
     "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b", r"\bKT\b",
                        r"towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)"),
-    "valve": (r"\bvalves?\b", r"\bvent(?=\s*[=:])", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
+    "valve": (r"\bvalves?\b", r"\bvlvs?\b", r"\bvent(?=\s*[=:])", r"\bvent(?=\s+\d)", r"\bválv\b", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
               r"\bshare of (?:the )?flow\b", r"\bof (?:the )?(?:\w+ )?flow\b", r"\bflow share\b",
               r"\bof (?:the )?(?:\w+ )?coolant\b", r"\bopen\w*",
               r"\bclos\w*", r"\bthrottl\w*", r"\btilt\w*", r"\bemphasi[sz]\w*", r"\bfavou?r\w*"),
@@ -381,7 +382,7 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
               "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
               "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"identisch\w*"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers", r"identique\w*", r"équiréparti\w*")},
-    "each": {"en": ("each", "every", "all", "everywhere", "across the board", r"[x×]\s?[2-9]"),
+    "each": {"en": ("each", "every", "all", "everywhere", "across the board", r"[x×]\s?[2-9]", r"[2-9]\s?[x×]"),
              "es": ("cada", "todas", "todos"),
              "de": (r"jede[nrs]?", "alle", "je", "überall"), "fr": ("chaque", "chacune?", "toutes", "tous", "partout")},
     # "its valve ...": the branch the previous sentence was about

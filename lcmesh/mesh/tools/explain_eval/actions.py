@@ -206,7 +206,8 @@ _SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+)+\s*%")  # "79/16/5 %": each a perce
 _PLURAL_BRANCHES = re.compile(r"\b(?:branches|ramas|zweige|str[äa]nge)\b", re.IGNORECASE)
 # every valve held, said of all of them: "unchanged", "sin cambios", "unverändert", "inchangées", "the same split"
 _HELD_ALL = re.compile(r"\b(?:unchanged|held|no\s+change|same\s+(?:split|distribution)|sin\s+cambios?|igual(?:es)?|"
-                       r"mismo\s+reparto|quiet[oa]s?|unverändert|gehalten|gleiche?\s+aufteilung|inchangée?s?|"
+                       r"mismo\s+reparto|quiet[oa]s?|unverändert|gehalten|gleiche?\s+aufteilung|inchangée?s?|no\s+cambia\w*|"
+                       r"sin\s+tocar|ändert\s+sich\s+nicht|ne\s+change\s+pas|untouched|"
                        r"maintenue?s?|même\s+répartition|ne\s+bougent\s+pas)\b", re.IGNORECASE)  # fmt: skip
 _COUNT_BEFORE = re.compile(r"(?:all|alle|todas|las|los|toutes|les|die|the)\s+(?:\w+\s+)?$", re.IGNORECASE)
 _PLURAL_VALVES = re.compile(r"\b(?:valves|válvulas|ventile|vannes)\b", re.IGNORECASE)

@@ -39,7 +39,8 @@ _ENTITY_NOUNS = vocab.alternation(*(w for by_lang in vocab.ENTITY_WORDS.values()
                                   *(w for lang in vocab.LANGUAGES for w in vocab.BRANCH_WORDS[lang]))  # fmt: skip
 _INDEX_WORD = re.compile(_ENTITY_NOUNS + "|" + vocab.alternation(
     "cells?", "nodes?", "heads?", "rank", "category", "level", "step", "index", "number", "no", "pumps?", "loop",
-    "paso", "schritt", "pas", "étape", "zeitschritt", "reihe", "fila", "rangée",
+    "paso", "schritt", "pas", "étape", "zeitschritt", "reihe", "fila", "rangée", "prüfpunkt", "punkt", "hallazgo",
+    "finding", "constat", "point", "schr", "gab", "arm", "cab",
     "zone", "row", "option", "priority", "id", "phase", "stage", "agent", "cts?", "b", "c", "t", "item", "decision",
     "line", "section", "table", "figure", "fig", "appendix", "equation", "eq", "algorithm", "case", "scenario",
     "example", "version", "blades", "lames"), re.IGNORECASE)  # fmt: skip

@@ -167,6 +167,22 @@ _BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s
 _LETTER_BRANCH = re.compile(r"\b(ramas?|zweige?|branch(?:es)?|branches?)[\s_-]+([A-Ca-c])\b(?=\s*[:=,;)\]]|\s+\d|$)")
 
 
+_NUMBER_NAMES = {"i": 1, "ii": 2, "iii": 3, "iv": 4, "uno": 1, "una": 1, "dos": 2, "tres": 3, "cuatro": 4, "eins": 1,
+                 "zwei": 2, "drei": 3, "vier": 4, "un": 1, "une": 1, "deux": 2, "trois": 3, "quatre": 4, "one": 1,
+                 "two": 2, "three": 3, "four": 4}  # fmt: skip
+_NUMBER_NAME = r"(?:" + "|".join(sorted(_NUMBER_NAMES, key=len, reverse=True)) + r")"
+# "Zweig II", "Zw. III", "rama dos", "ramas uno y dos", "branch two": a branch named by a roman numeral or a word
+_NAMED_NUMBER = re.compile(r"\b((?:ramas?|zweige?|zw\.|str[aä]nge?|branch(?:es)?|branches?|vlv|ventile?)\s*)"
+                           r"(" + _NUMBER_NAME + r"(?:\s*(?:-|,|/|y|und|et|and)\s*" + _NUMBER_NAME + r")*)\b"
+                           r"(?!\s*(?:°|%|kW|psi))", I)
+
+
+def _branch_number(m: re.Match) -> str:
+    names = re.split(r"(\s*(?:-|,|/|y|und|et|and)\s*)", m.group(2))
+    out = [str(_NUMBER_NAMES[p.lower()]) if p.lower() in _NUMBER_NAMES else p for p in names]
+    return m.group(1) + "".join(out)
+
+
 def _is_the_branch(line: str) -> str:
     out, last = [], 0
     for m in _IS_THE_N.finditer(line):
@@ -204,7 +220,8 @@ def normalize(text: str, language: str = "en") -> str:
         if not s or heading_of(line) is not None:
             out.append(line)
             continue
-        line = _is_the_branch(_LETTER_BRANCH.sub(lambda m: f"{m.group(1)} {' abc'.index(m.group(2).lower())}", line))
+        line = _LETTER_BRANCH.sub(lambda m: f"{m.group(1)} {' abc'.index(m.group(2).lower())}", line)
+        line = _is_the_branch(_NAMED_NUMBER.sub(_branch_number, line))
         if len(re.findall(r"[A-Za-z][\w.-]*\s*=", line)) >= 3:
             line = _KV_PAIR_GAP.sub("; ", line.strip())
         for pattern, repl in _SHORTHAND:
@@ -346,8 +363,8 @@ _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + 
 _SHARE_FRACTION = re.compile(r"1/[2-9]")
 _PERCENT_AFTER = re.compile(r"(?:\s*/\s*\d+)*\s*(?:%|por\s*ciento|prozent|pour\s*cent)", I)
 # "V1=0,333", "V2 zu", "br. 3", "Br.2": a valve's or a branch's short name (a mention of that branch)
-_VALVE_SHORT = re.compile(r"\b(?:V|br\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
-_LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&)\s*" + vocab.ARTICLE + "?", I)
+_VALVE_SHORT = re.compile(r"\b(?:V|R|br\.?\s?|zw\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
+_LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&|/|-)\s*" + vocab.ARTICLE + "?", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
 _ORDINALS = vocab.ORDINAL_WORDS
 _ORD = "|".join(sorted(_ORDINALS, key=len, reverse=True))
