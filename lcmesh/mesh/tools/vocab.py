@@ -303,7 +303,7 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     "supply_setpoint": _SUPPLY_SETPOINT,
     "supply": (*_SUPPLY_SETPOINT, r"supply(?:[\s-]+(?:water|coolant))?[\s-]+temperature",
                r"coolant[\s-]+(?:supply[\s-]+)?temperature", r"\bsupply\b", r"\bcoolant\b",
-               r"(?<![^\W_])VL(?![^\W_])", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b", r"\bsup\.?\s+sp\b", r"\bsp\s+imp\b",
+               r"(?<![^\W_])VL(?![^\W_])", r"(?:(?<=\|\s)|(?<=,\s)|(?<=;\s)|^)SP\b", r"\bsup\.?\s+(?:sp|setpoint)\b", r"\b(?:sp|setpoint)\s+imp\b",
                r"\b(?:cons|csg)\.?\s+alim\w*", r"\balim\b", r"\bvorl\.", r"\bimp\.?\s+sp\b"),  # German shorthand (Vorlauf); a bare SP item
     "flow": (r"\bflow(?:[\s-]+rate)?\b", r"\bpump[\s-]+speed\b", r"\bQ_?cdu\b", r"\bmass flow\b"),
     "dp": (r"\bdp\b", r"Δ\s?p\b", r"\bdelta[\s-]?p\b", r"differential[\s-]+pressure", r"\bpressure\b", "pump head"),
@@ -398,7 +398,8 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
              "de": (r"weniger\s+(?:\w+\s+)?(?:durchfluss|kühlmittel)", r"(?:kleinere[nrs]?|niedrigere[nrs]?)\s+(?:anteil|öffnung)"),
              "fr": (r"moins\s+de\s+(?:débit|fluide)", r"(?:une\s+)?plus\s+petite\s+(?:part|ouverture)")},
     # a valve claim made against the other branches ("more than the others") or the load ("above its load share")
-    "than_others": {"en": ("than", "equal", r"even(?!\s+(?:though|if|so|when|as|more|less))", "average", "others?"),
+    "than_others": {"en": ("than", "equal", r"even(?!\s+(?:though|if|so|when|as|more|less))(?=\s+\w)", "average",
+                           "others?"),
                     "es": (r"que\s+(?:las|los)\s+(?:demás|otr[oa]s)", "media", "promedio"),
                     "de": ("als", r"durchschnitt\w*", r"andere[mns]?"),
                     "fr": (r"que\s+les\s+autres", "moyenne")},

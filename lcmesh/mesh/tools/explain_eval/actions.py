@@ -202,7 +202,7 @@ def _valves_covered(ctx: Context) -> set[int]:
 
 _THE_VALVE = re.compile(r"\b(?:the\s+valve|das\s+ventil|la\s+vanne|la\s+válvula|sein\s+ventil|su\s+válvula|sa\s+vanne)\b",
                         re.IGNORECASE)  # fmt: skip
-_SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+)+\s*%")  # "79/16/5 %": each a percentage
+_SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+(?:\.\d+)?)+\s*%")  # "79/16/5 %", "33.7 / 32.3 / 34.1 %": percentages
 _PLURAL_BRANCHES = re.compile(r"\b(?:branches|ramas|zweige|str[äa]nge)\b", re.IGNORECASE)
 # every valve held, said of all of them: "unchanged", "sin cambios", "unverändert", "inchangées", "the same split"
 _HELD_ALL = re.compile(r"\b(?:unchanged|held|no\s+change|same\s+(?:split|distribution)|sin\s+cambios?|igual(?:es)?|"

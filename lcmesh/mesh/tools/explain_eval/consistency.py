@@ -255,6 +255,8 @@ def _effect_direction(t: str, a: int, b: int, kind: str) -> tuple[str, int] | No
 # --- bounds -------------------------------------------------------------------------------------
 
 
+_OTHER_SETTING = re.compile(tx.SUPPLY_ANY.pattern + "|" + tx.DP.pattern + "|" + tx.TOWER.pattern + "|" + tx.FLOW.pattern,
+                            re.I)  # fmt: skip
 _VALVE_BEFORE = re.compile(r"(?:" + tx.VALVE.pattern + r")[^.;]{0,40}$", re.I)  # a valve word in any of the four
 
 
@@ -289,8 +291,9 @@ def check_bounds(ctx: Context) -> list[Flag]:
             if not tx.VALVE.search(c.text):
                 continue
             for m in ctx.numbers_in(c.start, c.end):
-                if not _VALVE_BEFORE.search(ctx.rec.text[c.start : m.start]):
-                    continue
+                before = ctx.rec.text[c.start : m.start]
+                if not _VALVE_BEFORE.search(before) or _OTHER_SETTING.search(before[list(tx.VALVE.finditer(before))[-1].end():]):
+                    continue  # "Vlv = (1/3), supply setpoint 30 =, dp 27.5 =": 27.5 is the dp's
                 over = (m.unit == "" and m.decimals > 0 and m.value > 1.0) or (m.unit == "%" and m.value > 100)
                 if over or (m.unit in ("", "%") and m.value < 0):
                     flags.append(ctx.fail("bound", "out_of_bounds", f"'{m.text}{'%' if m.unit == '%' else ''}' in '{c.text.strip()}'"

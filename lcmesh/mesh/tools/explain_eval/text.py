@@ -94,10 +94,17 @@ _THOUSAND_DOTS = re.compile(r"(?<![\w.,])\d{1,3}(?:\.\d{3})+(?=,\d)")
 _LEADING_ZERO_COMMA = re.compile(r"(?<![\w,.])0,(?=\d+(?!\d|,\d))")  # "0,333" is no thousands group in any language
 
 
+def _digits_end(text: str, pos: int) -> int:
+    while pos < len(text) and text[pos].isdigit():
+        pos += 1
+    return pos
+
+
 def _decimal_commas(text: str, language: str = "en") -> str:
     def repl(m: re.Match) -> str:
-        if m.group(1) != "0" and _INDEX_BEFORE.search(text[max(0, m.start() - 20) : m.start()]):
-            return m.group()
+        if m.group(1) != "0" and _INDEX_BEFORE.search(text[max(0, m.start() - 20) : m.start()]) \
+                and not vocab.unit_at(text, _digits_end(text, m.end())):
+            return m.group()  # "ramas 1,2" lists branches; "ramas 31,1 °C" is a temperature
         return m.group(1) + "."
 
     if language in ("es", "de", "fr"):
@@ -277,7 +284,8 @@ _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
 # chat and log writers start sentences in lower case too ("dp held. torre sube a 29,0 °C"), but not after an
 # abbreviation ("cons. 18,0 °C", "approx. 3 K", "z. B.")
 _LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]*_]*\s+(?=[a-zà-öø-ÿ])")
-_ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|br|arm|cab|e\.g|i\.e|z\.\s?b|"
+_ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|br|arm|cab|zw|schr|gab|"
+                           r"vorl|ét|csg|sup|imp|e\.g|i\.e|z\.\s?b|"
                            r"u\.\s?a|d\.\s?h|p\.\s?ej|c\.-à-d)\.)$", I)
 _SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]*_]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔΔ\"'(\[*•¿¡-])")
 _AND = vocab.alternation(*function_words("and"))
