@@ -59,7 +59,7 @@ def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
         "targets_met": {k: agg[k] >= v for k, v in TARGETS.items()},
     }  # fmt: skip
     result["corpus"] = {part: _summarized(corpus_verdict(part))
-                        for part in ("fresh3", "fresh2", "fresh", "dev3", "fresh_dev", "test", "dev")}
+                        for part in ("fresh4", "fresh3", "fresh2", "fresh", "dev3", "fresh_dev", "test", "dev")}
     result["testset"] = testset_verdict(testset_dir)
     return result
 
@@ -106,7 +106,9 @@ DEV3 = "dev3.jsonl"  # issue 35: tuning texts by two more outside authors (d1, d
 # 50 % es/de/fr; the judge was tuned on them (their texts and misses were read)
 FRESH3 = "fresh3.jsonl"  # issue 35: the new test part, by two outside authors (t1, t2) who never saw the judge, its
 # texts or misses, written before the judge was tuned for issue 35; only its aggregates were read, after the tuning
-FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2, "dev3": DEV3, "fresh3": FRESH3}
+FRESH4 = "fresh4.jsonl"  # issue 35: a second new test part, by two more outside authors (t3, t4), written while the judge
+# was tuned further after fresh3's one scoring; only its aggregates were read, once, at the end
+FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2, "dev3": DEV3, "fresh3": FRESH3, "fresh4": FRESH4}
 
 
 def load_fresh(folder: Path = CORPUS, name: str = FRESH) -> list[dict]:
@@ -269,14 +271,16 @@ def _fig(x: float | None) -> str:
 def corpus_markdown(corpus: dict) -> list[str]:
     """The outside corpus's tables: the fresh part (when there is one) and the test part are the evidence, the dev
     part (tuned on) is shown beside them."""
-    lines = issue35_markdown(corpus) + [""] if corpus.get("fresh3", {}).get("texts") else []
+    lines = issue35_markdown(corpus) + [""] if corpus.get("fresh3", {}).get("texts") or \
+        corpus.get("fresh4", {}).get("texts") else []
     lines += fresh2_markdown(corpus["fresh2"]) + [""] if corpus.get("fresh2", {}).get("texts") else []
     lines += fresh_markdown(corpus["fresh"], corpus["test"], corpus["dev"]) + [""] if corpus.get("fresh") else []
     return lines + _old_corpus_markdown(corpus)
 
 
-_PARTS_35 = (("fresh3", "**fresh3** (held out: authors t1, t2)"), ("fresh2", "fresh2 (held out; see note)"),
-             ("fresh", "fresh (held out, issue 24)"), ("dev3", "dev3 (tuned on: authors d1-d4)"))  # fmt: skip
+_PARTS_35 = (("fresh4", "**fresh4** (held out: authors t3, t4)"), ("fresh3", "fresh3 (held out: authors t1, t2)"),
+             ("fresh2", "fresh2 (held out)"), ("fresh", "fresh (held out, issue 24)"),
+             ("dev3", "dev3 (tuned on: authors d1-d6)"))  # fmt: skip
 
 
 def issue35_markdown(corpus: dict) -> list[str]:
@@ -284,10 +288,12 @@ def issue35_markdown(corpus: dict) -> list[str]:
     parts = [(k, label) for k, label in _PARTS_35 if corpus.get(k, {}).get("texts")]
     head = "| figure | " + " | ".join(label for _, label in parts) + " | target |"
     lines = [
-        f"**Typed claims on new authors' texts** (issue 35). `corpus/{FRESH3}`: {corpus['fresh3']['texts']} texts "
-        f"({corpus['fresh3']['correct_texts']} correct) on the test decisions by two outside authors who never saw "
-        "the judge, written before it was changed for the issue; only these aggregates were read, once, after the "
-        f"tuning. `corpus/{DEV3}`: {corpus.get('dev3', {}).get('texts', 0)} texts by four other outside authors on "
+        f"**Typed claims on new authors' texts** (issue 35). Every held-out part is on the test decisions, by outside "
+        "authors who never saw the judge, its code or its misses; nobody who tuned the judge read one of their texts. "
+        f"`corpus/{FRESH4}` ({corpus.get('fresh4', {}).get('texts', 0)} texts by authors t3 and t4) was scored once, "
+        f"at the end; `corpus/{FRESH3}` ({corpus['fresh3']['texts']} texts by t1 and t2) was scored once midway, and "
+        "the judge was tuned further on new dev authors after that, so its figures here were seen before the last "
+        f"round. `corpus/{DEV3}`: {corpus.get('dev3', {}).get('texts', 0)} texts by six other outside authors on "
         "the dev decisions, read and tuned on (in-sample). A failed claim carries one flag (a setpoint given out of "
         "range is out_of_bounds, not also ungrounded); the fresh part's author labelled such values with both, so its "
         "ungrounded_number recall counts them as misses.",
@@ -304,10 +310,11 @@ def issue35_markdown(corpus: dict) -> list[str]:
             f = corpus[k]["per_flag"][kind]
             cells.append(f"{_fig(f['recall'])} / {_fig(f['precision'])}")
         lines.append(f"| {kind}: recall / precision | " + " | ".join(cells) + " | >= 0.95 / >= 0.9 |")
-    fresh3 = corpus["fresh3"]
-    lines += ["", "fresh3 by language and by style family (correct texts flagged / flawed texts found): " + ", ".join(
-        f"{k} {v['correct_flagged']}/{v['correct']}, {v['flawed_found']}/{v['flawed']}"
-        for k, v in sorted({**fresh3.get("per_lang", {}), **fresh3.get("per_family", {})}.items())) + "."]
+    for k, _ in parts[:2]:
+        part = corpus[k]
+        lines += ["", f"{k} by language and by style family (correct texts flagged / flawed texts found): " + ", ".join(
+            f"{name} {v['correct_flagged']}/{v['correct']}, {v['flawed_found']}/{v['flawed']}"
+            for name, v in sorted({**part.get("per_lang", {}), **part.get("per_family", {})}.items())) + "."]
     return lines
 
 
