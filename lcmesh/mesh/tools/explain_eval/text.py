@@ -349,6 +349,8 @@ def sentences(text: str) -> list[Sentence]:
 def _clauses(sentence: str, offset: int) -> list[Clause]:
     cuts = [0]
     for m in _CLAUSE_SPLIT.finditer(sentence):
+        if m.group().startswith(":") and len(re.findall(r"\w+", sentence[cuts[-1] if len(cuts) > 1 else 0 : m.start()])) <= 4:
+            continue  # "torre: consigna bajada a 25,2 °C", "dp setpoint: raised to 27.5 psi": a label and what it says
         cuts += [m.start(), m.end()]
     cuts.append(len(sentence))
     clauses = []
@@ -474,10 +476,11 @@ CAUSE_ADJ_DOWN = re.compile(
     r"|menos|menor|weniger|niedrigere[nrs]?|moins\s+de|" + _MOVE_DOWN + r")" + _ARTICLE_AFTER + r"\s*$", I
 )
 # the same after the dimension word: "un Δp plus élevé", "una consigna más alta", "une consigne de départ plus basse"
-CAUSE_AFTER_UP = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+(?:élevée?s?|haute?s?)|supérieure?s?|más\s+alt[oa]s?|"
+CAUSE_AFTER_UP = re.compile(r"^\s*(?:\w+\s+)?(?:anzuheben|zu\s+erhöhen|plus\s+(?:élevée?s?|haute?s?)|supérieure?s?|más\s+alt[oa]s?|"
                             r"higher|höher\w*|(?:this|so|that)\s+high|increase|rise|raise|bump|hike|aumento|subida|"
                             r"erhöhung|anhebung|hausse|augmentation)\b", I)
-CAUSE_AFTER_DOWN = re.compile(r"^\s*(?:\w+\s+)?(?:plus\s+basse?s?|inférieure?s?|más\s+baj[oa]s?|lower|"
+CAUSE_AFTER_DOWN = re.compile(r"^\s*(?:\w+\s+)?(?:abzusenken|zu\s+senken|(?:tan|muy|so|sehr|si|très)\s+(?:baj[oa]|niedrig\w*|basse?)|"
+                              r"plus\s+basse?s?|inférieure?s?|más\s+baj[oa]s?|lower|"
                               r"niedriger\w*|tiefer\w*|decrease|drop|cut|reduction|bajada|descenso|reducción|"
                               r"absenkung|senkung|baisse|diminution)\b", I)
 TARGETS = {
@@ -485,6 +488,7 @@ TARGETS = {
                    "components?", "hardware", r"hot\s?spots?",
                    "placas", "temperaturas?", r"temperatur(?:en)?", "températures?", "lames",
                    r"supply\s+water", r"eau\s+de\s+(?:soufflage|départ)", r"agua\s+de\s+impulsión",
+                   r"wasser\s+zur\s+cdu", r"water\s+to\s+the\s+cdus?", r"(?:agua|eau)\s+(?:hacia\s+|vers\s+)?(?:la|el)\s+cdu",
                    r"vorlauf(?:wasser|temperatur)"),
     # a branch itself warms or cools ("würde Zweig 2 noch wärmer machen", "la réchaufferait"): warm/cool words only
     "branch": words("ramas?", r"zweige?s?", "branches?", "branch", r"(?:la|le|lo)(?=\s+\w*(?:calent|enfri|réchauff|"
@@ -519,7 +523,8 @@ EFFECT_DOWN = {
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
                     "idles?", "ahorra", "spart", "économise", r"trim\w*", r"relie\w*", r"ahorr\w*", r"spar\w*",
                     r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
-                    r"reducir\w*", r"verringer\w*", r"reduzier\w*", "down", r"gesenkt", r"gast\w*\s+menos"),
+                    r"reducir\w*", r"verringer\w*", r"reduzier\w*", "down", r"gesenkt", r"gast\w*\s+menos",
+                    r"(?:casi\s+)?parad[oa]s", "idle", r"à\s+l['’]arrêt", r"stehen\w*"),
 }  # fmt: skip
 EFFECT_UP["heat"] = words("warm(?:s|ed|ing|er)?", "hotter", r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
                           r"heat(?:s|ed|ing)?\s+up")
