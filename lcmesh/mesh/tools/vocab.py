@@ -110,7 +110,7 @@ def canonical_entity(kind_word: str, number: str, outer_word: str | None = None,
 
 
 # a preposition between a number (and its unit) and the entity it is said of: "36.4 °C in cabinet 3"
-OF_BEFORE_ENTITY = re.compile(rf"\s*(?:in|of|for|at|en|von|de|du|del|im|bei|para|für|pour|dans)\s*{ARTICLE}?", I)
+OF_BEFORE_ENTITY = re.compile(rf"\s*(?:in|of|for|at|en|von|de|du|del|im|bei|para|für|pour|dans|auf|sur|por)\s*{ARTICLE}?", I)
 
 
 def entity_of(text: str, entities: list[tuple[int, int, str]], start: int, end: int) -> str | None:

@@ -49,7 +49,7 @@ class BranchMention:
 _TABLE_RULE = re.compile(r"^:?-{2,}:?$")
 _CHANGE_WORDS = r"(?:raised|lowered|held|increased|decreased|unchanged|opened|closed)"
 _KV_LINE = re.compile(r"^(?P<lead>\s*(?:[-*•]\s+)?)(?P<key>[A-Za-z][\w '’/-]*?)\s*[:=]\s*(?P<val>[^()\n]+?)\s*"
-                      r"\((?P<dir>" + _CHANGE_WORDS + r"[^()]*)\)\s*\.?$", I)
+                      r"\((?P<dir>" + _CHANGE_WORDS + r"[^()\d]*)\)\s*\.?$", I)  # not "(held, 10.0 K above wet bulb)"
 # "dp setpoint: 41.5 psi, held": the change after a comma, as in a bullet list
 _KV_COMMA_LINE = re.compile(r"^(?P<lead>\s*(?:[-*•]\s+)?)(?P<key>[A-Za-z][\w '’/-]*?)\s*:\s*(?P<val>[^(),\n]+?)\s*,\s*"
                             r"(?P<dir>" + _CHANGE_WORDS + r")\s*\.?$", I)
