@@ -208,7 +208,7 @@ def normalize(text: str, language: str = "en") -> str:
     lowered). Prose without these shapes is returned unchanged."""
     out, header = [], None
     text = _flatten_json(_decimal_commas(text, language))
-    lines = text.splitlines()
+    lines = _csv_as_table(text.splitlines())
     bare = _bare_table_lines(lines)
     for k, line in enumerate(lines):
         s = line.strip()
@@ -238,6 +238,39 @@ def normalize(text: str, language: str = "en") -> str:
             line = f"{m.group('lead')}{m.group('key')} {m.group('dir')} at {m.group('val')}."
         out.append(line)
     return "\n".join(out)
+
+
+def _csv_as_table(lines: list[str]) -> list[str]:
+    """CSV pasted as text (a header of names, then rows with as many "," or ";" separated fields) becomes a markdown
+    table; a value whose header ends in a unit keeps it ("vorlauf_sw_c" -> °C)."""
+    out, k = list(lines), 0
+    while k < len(lines) - 1:
+        head = lines[k].strip()
+        sep = ";" if head.count(";") >= 2 else "," if head.count(",") >= 2 else None
+        if sep is None or re.search(r"\d[.,]\d|\s{2,}", head) or not re.fullmatch(r"[\w\s%°/.-]+(?:" + sep + r"[\w\s%°/.-]+)+", head):
+            k += 1
+            continue
+        names = [c.strip() for c in head.split(sep)]
+        j = k + 1
+        while j < len(lines) and lines[j].count(sep) == len(names) - 1 and lines[j].strip():
+            j += 1
+        if j - k < 2:
+            k += 1
+            continue
+        out[k] = ""
+        for r in range(k + 1, j):  # "armoire 2: branche 1, temp c 24.0 °C, vanne 0.333, ..."
+            cells = [c.strip() for c in lines[r].split(sep)]
+            named = [f"{name.replace('_', ' ')} {_cell_with_unit(name, cell)}" for name, cell in zip(names, cells)]
+            out[r] = f"{named[0]}: {', '.join(named[1:])}."
+        k = j
+    return out
+
+
+def _cell_with_unit(name: str, cell: str) -> str:
+    if re.fullmatch(r"[-+]?\d+(?:\.\d+)?", cell):
+        with_unit = _with_key_unit(name, float(cell))
+        return cell if isinstance(with_unit, float) else f"{cell} {with_unit.split(' ', 1)[1]}"
+    return cell
 
 
 def _bare_table_lines(lines: list[str]) -> set[int]:
