@@ -214,6 +214,8 @@ QUANTITY_WORDS: dict[str, tuple[str, ...]] = {
     "retorno del agua caliente": ("htw_return_temp",), "en banda": ("in_band",),
     "dentro de la banda": ("in_band", "inside", "total", "band_low", "band_high"), "energía": _ENERGY,
     "diferencial de presión": ("dp", "dp_setpoint"), "salida de la torre": ("leaving_water", "lw_setpoint", "lw"),
+    "suministro": ("supply_temp", "supply_setpoint", "supply"), "consigna de suministro": ("supply_setpoint", "supply"),
+    "setpoint de suministro": ("supply_setpoint", "supply"),
     "consigna de salida": ("lw_setpoint", "lw"),
     "salida de torre": ("leaving_water", "lw_setpoint", "lw"),
     # de
@@ -311,7 +313,7 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     # "the tower fans slowed down" is about the fans, not the leaving-water setpoint
     "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b", r"\bKT\b",
                        r"towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)"),
-    "valve": (r"\bvalves?\b", r"\bvlvs?\b", r"\bvent(?=\s*[=:])", r"\bvent(?=\s+\d)", r"\bválv\b", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
+    "valve": (r"\bvalves?\b", r"\bvlvs?\b", r"\bvent(?=\s*[=:])", r"\bvent(?=\s+\d)", r"\bvent\.", r"\bválv\b", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
               r"\bshare of (?:the )?flow\b", r"\bof (?:the )?(?:\w+ )?flow\b", r"\bflow share\b",
               r"\bof (?:the )?(?:\w+ )?coolant\b", r"\bopen\w*",
               r"\bclos\w*", r"\bthrottl\w*", r"\btilt\w*", r"\bemphasi[sz]\w*", r"\bfavou?r\w*"),
@@ -379,7 +381,7 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
     "equal": {"en": (r"equal(?:ly)?", r"even(?:ly)?(?!\s+(?:though|if|so|more|less|as|when|with)\b)", r"uniform\w*",
                      "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third", r"a\s+third", "⅓", r"identical\w*",
                      r"(?<![\d/])(?<!\d[.,])1/3(?![\d/])(?![.,]\d)", r"thirds"),
-              "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
+              "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"parej[oa]s", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
               "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"identisch\w*"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers", r"identique\w*", r"équiréparti\w*")},
     "each": {"en": ("each", "every", "all", "everywhere", "across the board", r"[x×]\s?[2-9]", r"[2-9]\s?[x×]"),

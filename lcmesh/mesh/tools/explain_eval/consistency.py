@@ -33,8 +33,8 @@ def check_ranking(ctx: Context) -> list[Flag]:
     data = {"temp": rec.temps_k, "load": rec.powers_w, "valve": rec.valves}
     for s in ctx.sentences:
         mentions = ctx.branches_in(s.start, s.end)
-        if not mentions:
-            continue
+        if not mentions or s.text.rstrip().endswith("?"):
+            continue  # a question ranks nothing ("¿cuál está más fría, la primera o la tercera?")
         for what, extreme, pattern in tx.SUPERLATIVES:
             values = data[what]
             for w in pattern.finditer(s.text):

@@ -318,7 +318,7 @@ _HEADING_MD = re.compile(r"^\s*(#{1,6})\s*(.+?)\s*#*\s*$")
 # abbreviation ("cons. 18,0 °C", "approx. 3 K", "z. B.")
 _LOWER_SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]*_]*\s+(?=[a-zà-öø-ÿ])")
 _ABBREVIATION = re.compile(r"(?:\b(?:cons|approx|aprox|env|ca|vs|etc|bzw|nr|no|resp|temp|max|min|avg|sp|br|arm|cab|zw|schr|gab|"
-                           r"vorl|ét|csg|sup|imp|e\.g|i\.e|z\.\s?b|"
+                           r"vorl|ét|csg|sup|imp|vent|änd|e\.g|i\.e|z\.\s?b|"
                            r"u\.\s?a|d\.\s?h|p\.\s?ej|c\.-à-d)\.)$", I)
 _SENTENCE_END = re.compile(r"(?<=[.!?])[\"')\]*_]*\s+(?=[A-Z0-9ÁÉÍÓÚÑÄÖÜÀÂÇÈÊÎÔΔ\"'(\[*•¿¡-])")
 _AND = vocab.alternation(*function_words("and"))
