@@ -313,7 +313,7 @@ EN_DIMENSION_FORMS: dict[str, tuple[str, ...]] = {
     # "the tower fans slowed down" is about the fans, not the leaving-water setpoint
     "tower_setpoint": (_TOWER_WATER, r"tower[\s-]+(?:\w+[\s-]+)?set[\s-]?point", r"\bCT\b", r"\bKT\b",
                        r"towers?(?![\s-]+(?:fans?|power|energy|draw|load|cells?)\b)"),
-    "valve": (r"\bvalves?\b", r"\bvlvs?\b", r"\bvent(?=\s*[=:])", r"\bvent(?=\s+\d)", r"\bvent\.", r"\bválv\b", r"\bv(?=\s*[=:]\s*\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
+    "valve": (r"\bvalves?\b", r"\bvlvs?\b", r"\bvent(?=\s*[=:])", r"\bvent(?=\s+\d)", r"\bvent\.", r"\bválv\b", r"\bv(?=\s*[=:]\s*[\[(]?\d)", r"\breceiv\w*", r"\bfractions?\b", r"\bopenings?\b", r"\bsplit\b", r"\ballocat\w*", r"\bdistribut\w*",
               r"\bshare of (?:the )?flow\b", r"\bof (?:the )?(?:\w+ )?flow\b", r"\bflow share\b",
               r"\bof (?:the )?(?:\w+ )?coolant\b", r"\bopen\w*",
               r"\bclos\w*", r"\bthrottl\w*", r"\btilt\w*", r"\bemphasi[sz]\w*", r"\bfavou?r\w*"),

@@ -128,6 +128,8 @@ def check_grounding(
             claim.entity = None if branch is None else f"branch {branch + base}"
             wrong = _misattributed(hits, branch, pool)
             topic = _topic_of(rec.text, m)
+            if wrong is not None and all(h.name.endswith("band edge") for h in hits) and _LIMIT_WORD.search(clause_at(m.start)):
+                wrong = None  # "branch 3 stays inside the 20-40 °C band", "lejos del límite de 40 °C": the band, named
             if wrong is not None:
                 actual = f"branch {wrong[1] + base}'s value" if wrong[1] is not None else f"the {_labels(hits)}"
                 res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given for branch "
@@ -216,14 +218,17 @@ _TOPIC_NAMES = re.compile(
 _SETPOINT_AFTER = re.compile(r"\W*(?:set[\s-]?point|SP|consigna|consigne|soll(?:wert)?)\W*(?:de|of|à|a|en|bei|auf)?\s*$",
                              re.IGNORECASE)  # fmt: skip
 _SUPPLY_NAME = re.compile(r"impulsi[oó]n|vorlauf\w*|d[ée]part|supply", re.IGNORECASE)
+_LIMIT_WORD = re.compile(r"\b(?:band|banda|bande|band(?:es)?|limit\w*|límite|grenze|edge|borde|bord|ceiling|margin\w*|"
+                         r"marge|margen|abstand)\b", re.IGNORECASE)  # fmt: skip
 _CLAUSE_END = re.compile(r"[.!?](?=\s)|[;|\n]")
 _LIST_ITEM_END = re.compile(r",\s|·|\s[–—-]\s")
 
 
 def _topic_of(text: str, m: NumberMention) -> str | None:
     end = m.unit_end if m.unit_end > 0 else m.end
-    after = _TOPIC_NAMES.match(text[end : end + 60].lstrip())  # "the 17.7 °C leaving-water setpoint"
-    if after:
+    tail = re.split(r"[\n;|#]", text[end : end + 60], maxsplit=1)[0].lstrip()
+    after = _TOPIC_NAMES.match(tail)  # "the 17.7 °C leaving-water setpoint"; not the next line's key
+    if after and not re.match(r"[\w\s-]*[:=]", tail[after.end() :]):
         return after.lastgroup if after.lastgroup != "other" else None
     breaks = [b.end() for b in _CLAUSE_END.finditer(text, 0, m.start)]
     before = text[breaks[-1] if breaks else 0 : m.start]

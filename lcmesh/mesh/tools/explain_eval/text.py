@@ -258,12 +258,21 @@ def _csv_as_table(lines: list[str]) -> list[str]:
             k += 1
             continue
         out[k] = ""
-        for r in range(k + 1, j):  # "armoire 2: branche 1, temp c 24.0 °C, vanne 0.333, ..."
+        for r in range(k + 1, j):  # "armoire 2: branche 1, temp c 24.0 °C, vanne 0.333 (held), ..."
             cells = [c.strip() for c in lines[r].split(sep)]
-            named = [f"{name.replace('_', ' ')} {_cell_with_unit(name, cell)}" for name, cell in zip(names, cells)]
+            named: list[str] = []
+            for name, cell in zip(names, cells):
+                if named and _CHANGE_COLUMN.search(name):
+                    named[-1] += f" ({cell})"  # "supply_dir": the change of the column before it
+                else:
+                    named.append(f"{name.replace('_', ' ')} {_cell_with_unit(name, cell)}")
             out[r] = f"{named[0]}: {', '.join(named[1:])}."
         k = j
     return out
+
+
+_CHANGE_COLUMN = re.compile(r"(?:^|_)(?:dir|direction|change|status|estado|accion|acción|richtung|sens|änderung|cambio)$",
+                            re.IGNORECASE)  # fmt: skip
 
 
 def _cell_with_unit(name: str, cell: str) -> str:
