@@ -59,7 +59,7 @@ def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
         "targets_met": {k: agg[k] >= v for k, v in TARGETS.items()},
     }  # fmt: skip
     result["corpus"] = {part: _summarized(corpus_verdict(part))
-                        for part in ("fresh4", "fresh3", "fresh2", "fresh", "dev3", "fresh_dev", "test", "dev")}
+                        for part in ("fresh5", "fresh4", "fresh3", "fresh2", "fresh", "dev3", "fresh_dev", "test", "dev")}
     result["testset"] = testset_verdict(testset_dir)
     return result
 
@@ -108,7 +108,10 @@ FRESH3 = "fresh3.jsonl"  # issue 35: the new test part, by two outside authors (
 # texts or misses, written before the judge was tuned for issue 35; only its aggregates were read, after the tuning
 FRESH4 = "fresh4.jsonl"  # issue 35: a second new test part, by two more outside authors (t3, t4), written while the judge
 # was tuned further after fresh3's one scoring; only its aggregates were read, once, at the end
-FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2, "dev3": DEV3, "fresh3": FRESH3, "fresh4": FRESH4}
+FRESH5 = "fresh5.jsonl"  # issue 35: a third new test part, by two more outside authors (t5, t6), written while the judge
+# was tuned on two more dev authors after fresh4's one scoring; only its aggregates were read, once, at the end
+FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2, "dev3": DEV3, "fresh3": FRESH3, "fresh4": FRESH4,
+               "fresh5": FRESH5}  # fmt: skip
 
 
 def load_fresh(folder: Path = CORPUS, name: str = FRESH) -> list[dict]:
@@ -278,9 +281,9 @@ def corpus_markdown(corpus: dict) -> list[str]:
     return lines + _old_corpus_markdown(corpus)
 
 
-_PARTS_35 = (("fresh4", "**fresh4** (held out: authors t3, t4)"), ("fresh3", "fresh3 (held out: authors t1, t2)"),
-             ("fresh2", "fresh2 (held out)"), ("fresh", "fresh (held out, issue 24)"),
-             ("dev3", "dev3 (tuned on: authors d1-d6)"))  # fmt: skip
+_PARTS_35 = (("fresh5", "**fresh5** (held out: authors t5, t6)"), ("fresh4", "fresh4 (held out: t3, t4)"),
+             ("fresh3", "fresh3 (held out: t1, t2)"), ("fresh2", "fresh2 (held out)"), ("fresh", "fresh (issue 24)"),
+             ("dev3", "dev3 (tuned on: d1-d8)"))  # fmt: skip
 
 
 def issue35_markdown(corpus: dict) -> list[str]:
@@ -290,10 +293,10 @@ def issue35_markdown(corpus: dict) -> list[str]:
     lines = [
         f"**Typed claims on new authors' texts** (issue 35). Every held-out part is on the test decisions, by outside "
         "authors who never saw the judge, its code or its misses; nobody who tuned the judge read one of their texts. "
-        f"`corpus/{FRESH4}` ({corpus.get('fresh4', {}).get('texts', 0)} texts by authors t3 and t4) was scored once, "
-        f"at the end; `corpus/{FRESH3}` ({corpus['fresh3']['texts']} texts by t1 and t2) was scored once midway, and "
-        "the judge was tuned further on new dev authors after that, so its figures here were seen before the last "
-        f"round. `corpus/{DEV3}`: {corpus.get('dev3', {}).get('texts', 0)} texts by six other outside authors on "
+        f"`corpus/{FRESH5}` ({corpus.get('fresh5', {}).get('texts', 0)} texts by authors t5 and t6) was scored once, "
+        f"at the end; `corpus/{FRESH3}` (t1, t2) and `corpus/{FRESH4}` (t3, t4) were each scored once after a round of "
+        "tuning and the judge was tuned further on new dev authors after that, so their figures here were seen "
+        f"before the last round. `corpus/{DEV3}`: {corpus.get('dev3', {}).get('texts', 0)} texts by eight other outside authors on "
         "the dev decisions, read and tuned on (in-sample). A failed claim carries one flag (a setpoint given out of "
         "range is out_of_bounds, not also ungrounded); the fresh part's author labelled such values with both, so its "
         "ungrounded_number recall counts them as misses.",
