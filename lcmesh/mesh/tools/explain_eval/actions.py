@@ -168,10 +168,13 @@ def _valves_covered(ctx: Context) -> set[int]:
             # and the direction check judge it): "la rama 3 se abre hasta 0,59", "Ventil Zweig 1 | 1,36 | 0,355"
             stated = has_valve_word and (
                 any(m.unit in ("", "%") and 0 <= m.value <= (100 if m.unit == "%" else 1.5) and (m.decimals or m.unit)
-                    for m in ctx.numbers_in(a, z)) or tx.ANY_DIRECTION.search(span))  # fmt: skip
+                    for m in ctx.numbers_in(a, z)) or tx.ANY_DIRECTION.search(span) or _HELD_ALL.search(span)
+                or _STAY.search(span))  # fmt: skip
             if (cited and (has_valve_word or previous_valves or exact or tx.VALVE.search(span))) or share or talks \
                     or stated:
                 covered.add(j)
+        if has_valve_word and mentions and _OTHERS.search(s.text):
+            covered.update(range(valves.size))  # "opened branch 3 while the other two valves kept their share"
         previous_valves = has_valve_word or len(covered) > before_sentence
         asked = plural_before  # the previous sentence asked about the valves: "Et les vannes ?" "Toujours à un tiers"
         plural_before = bool(_PLURAL_VALVES.search(s.text)) and s.text.rstrip().endswith("?")  # "¿Las válvulas?"
@@ -203,6 +206,10 @@ def _valves_covered(ctx: Context) -> set[int]:
 _THE_VALVE = re.compile(r"\b(?:the\s+valve|das\s+ventil|la\s+vanne|la\s+válvula|sein\s+ventil|su\s+válvula|sa\s+vanne)\b",
                         re.IGNORECASE)  # fmt: skip
 _SLASH_PERCENT = re.compile(r"(?:\s*/\s*\d+(?:\.\d+)?)+\s*%")  # "79/16/5 %", "33.7 / 32.3 / 34.1 %": percentages
+_STAY = re.compile(r"\b(?:stay(?:s|ed)?|remain(?:s|ed)?|kept|keep(?:s)?|sit(?:s)?|stand(?:s)?)\b", re.IGNORECASE)
+# "the other two", "los demás", "die beiden anderen", "les deux autres": every branch not named
+_OTHERS = re.compile(r"\b(?:the\s+other\s+(?:two|ones|valves|branches)|the\s+others|(?:los|las)\s+(?:otr[oa]s\s+dos|demás)|"
+                     r"(?:die\s+)?(?:beiden\s+)?anderen|les\s+(?:deux\s+)?autres)\b", re.IGNORECASE)  # fmt: skip
 _PLURAL_BRANCHES = re.compile(r"\b(?:branches|ramas|zweige|str[äa]nge)\b", re.IGNORECASE)
 # every valve held, said of all of them: "unchanged", "sin cambios", "unverändert", "inchangées", "the same split"
 _HELD_ALL = re.compile(r"\b(?:unchanged|held|no\s+change|same\s+(?:split|distribution)|sin\s+cambios?|igual(?:es)?|"

@@ -144,9 +144,9 @@ def _flatten_json(text: str) -> str:
     def walk(obj: dict, path: list[str]) -> None:
         leaves = [(k, _with_key_unit(k, ", ".join(map(str, v)) if isinstance(v, list) else v)) for k, v in obj.items()
                   if not isinstance(v, dict) and not (isinstance(v, list) and any(isinstance(x, (dict, list)) for x in v))]
-        change = [str(v) for k, v in leaves if k.lower() in ("change", "direction")]
+        change = [str(v) for k, v in leaves if _CHANGE_COLUMN.search(k)]
         cells = [str(v) if _GENERIC_HEADERS.match(k) else f"{k} {v}" for k, v in leaves
-                 if k.lower() not in ("change", "direction")]  # fmt: skip
+                 if not _CHANGE_COLUMN.search(k)]  # fmt: skip
         if path and cells:
             lines.append(f"{' '.join(path)}: {', '.join(cells)}{f' ({change[0]})' if change else ''}.")
         elif not path:
@@ -154,6 +154,10 @@ def _flatten_json(text: str) -> str:
         for k, v in obj.items():
             if isinstance(v, dict):
                 walk(v, path + [k])
+            elif isinstance(v, list):  # "ventile": [{"zweig": 1, "anteil": 0.338, "richtung": "geöffnet"}, ...]
+                for item in v:
+                    if isinstance(item, dict):
+                        walk(item, path + [k])
 
     walk(data, [])
     head = text[:a].rstrip().rstrip("-> :=").rstrip()
@@ -174,6 +178,9 @@ _BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s
 _LETTER_BRANCH = re.compile(r"\b(ramas?|zweige?|branch(?:es)?|branches?)[\s_-]+([A-Ca-c])\b(?=\s*[:=,;)\]]|\s+\d|$)")
 
 
+# the middle one of three branches: "the middle branch", "la rama central", "der mittlere Zweig", "la branche du milieu"
+_MIDDLE_BRANCH = re.compile(r"\b(?:the\s+)?middle\s+branch|\brama\s+(?:central|del\s+medio)|\bmittlere[nrs]?\s+zweig\w*|"
+                            r"\bbranche\s+(?:du\s+milieu|centrale)", I)  # fmt: skip
 _NUMBER_NAMES = {"i": 1, "ii": 2, "iii": 3, "iv": 4, "uno": 1, "una": 1, "dos": 2, "tres": 3, "cuatro": 4, "eins": 1,
                  "zwei": 2, "drei": 3, "vier": 4, "un": 1, "une": 1, "deux": 2, "trois": 3, "quatre": 4, "one": 1,
                  "two": 2, "three": 3, "four": 4}  # fmt: skip
@@ -228,6 +235,7 @@ def normalize(text: str, language: str = "en") -> str:
             out.append(line)
             continue
         line = _LETTER_BRANCH.sub(lambda m: f"{m.group(1)} {' abc'.index(m.group(2).lower())}", line)
+        line = _MIDDLE_BRANCH.sub("branch 2", line)
         line = _is_the_branch(_NAMED_NUMBER.sub(_branch_number, line))
         if len(re.findall(r"[A-Za-z][\w.-]*\s*=", line)) >= 3:
             line = _KV_PAIR_GAP.sub("; ", line.strip())
@@ -415,7 +423,7 @@ _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + 
 _SHARE_FRACTION = re.compile(r"1/[2-9]")
 _PERCENT_AFTER = re.compile(r"(?:\s*/\s*\d+)*\s*(?:%|por\s*ciento|prozent|pour\s*cent)", I)
 # "V1=0,333", "V2 zu", "br. 3", "Br.2": a valve's or a branch's short name (a mention of that branch)
-_VALVE_SHORT = re.compile(r"\b(?:V|R|br\.?\s?|zw\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
+_VALVE_SHORT = re.compile(r"\b(?:V|R|Z|br\.?\s?|zw\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
 _LIST_JOIN = re.compile(r"\s*(?:,|,?\s*" + _AND + r"|&|/|-)\s*" + vocab.ARTICLE + "?", I)
 _BRANCH_SHORT = re.compile(r"\b(?:B|BG)(?P<num>\d+)\b")
 _ORDINALS = vocab.ORDINAL_WORDS
