@@ -382,7 +382,7 @@ SPLIT_WORDS: dict[str, dict[str, tuple[str, ...]]] = {
                      "same (?:fraction|opening|share)", r"(?:one|a)[\s-]+third\s+each", r"one[\s-]+third", r"a\s+third", "⅓", r"identical\w*",
                      r"(?<![\d/])(?<!\d[.,])1/3(?![\d/])(?![.,]\d)", r"thirds"),
               "es": (r"por\s+igual", r"igual(?:es|mente)", r"uniforme\w*", r"equitativ\w*", r"parej[oa]s", r"un\s+tercio", r"tercios", r"tercera\s+parte", r"idéntic\w*"),
-              "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"identisch\w*"),
+              "de": (r"gleich(?:mäßig|mässig|e[nrs]?)?", r"gleichmäßig\w*", r"(?:ein(?:em)?\s+)?drittel", r"gedrittelt", r"gleichverteil\w*", r"identisch\w*"),
               "fr": (r"égal(?:e|es|ement)?", r"uniforme\w*", r"à\s+parts\s+égales", r"un\s+tiers", r"tiers", r"identique\w*", r"équiréparti\w*")},
     "each": {"en": ("each", "every", "all", "everywhere", "across the board", r"[x×]\s?[2-9]", r"[2-9]\s?[x×]"),
              "es": ("cada", "todas", "todos"),

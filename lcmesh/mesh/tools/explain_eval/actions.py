@@ -173,6 +173,10 @@ def _valves_covered(ctx: Context) -> set[int]:
             if (cited and (has_valve_word or previous_valves or exact or tx.VALVE.search(span))) or share or talks \
                     or stated:
                 covered.add(j)
+        if has_valve_word and mentions:  # "öffnet das Ventil von Zweig 1": a move claimed for a valve states it
+            for c in s.clauses:
+                covered.update(int(dim.split(":")[1]) for dim, _, _ in direction_claims(ctx, c, valve_context=True)
+                               if dim.startswith("valve:") and 0 <= int(dim.split(":")[1]) < valves.size)
         if has_valve_word and mentions and _OTHERS.search(s.text):
             covered.update(range(valves.size))  # "opened branch 3 while the other two valves kept their share"
         previous_valves = has_valve_word or len(covered) > before_sentence

@@ -171,7 +171,7 @@ def _flatten_json(text: str) -> str:
 _IS_THE_N = re.compile(r"\b(?:es|est|ist)\s+(?:la|el|le|der|die)\s+(?=\d+\b(?![.,]\d))"
                        r"|(?<![\w.,])(?:la|el|le|der|die|den|dem)\s+(?=[1-9]\b(?![.,]\d)(?!\s*(?:°|%|K\b|kW|psi|"
                        r"grad|grados|degr|kilo|°C|h\b|min)))", I)
-_BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s?)\b", I)
+_BRANCH_WORD = re.compile(r"\b(?:ramas?|zweige?s?|branches?|branch|str[aä]nge?s?|válvulas?|vannes?|ventile?|valves?)\b", I)
 
 
 # "rama_a", "Zweig B", "branch C" as keys or labels: branches 1, 2, 3
