@@ -224,7 +224,7 @@ def _causes(ctx: Context, s: tx.Sentence) -> list[tuple[str, str, int, int]]:
             elif tx.CAUSE_ADJ_DOWN.search(before) or tx.CAUSE_AFTER_DOWN.match(after):
                 pol = "down"
             else:
-                near = [p for d, p, pos in claimed if d == dim and abs(pos - m.start()) < 60]
+                near = [p for d, p, pos in claimed if d == dim and abs(pos - m.start()) < 80]
                 pol = near[0] if near else None
             if pol is not None:
                 out.append((dim, pol, m.start(), m.end()))

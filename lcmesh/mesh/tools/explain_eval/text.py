@@ -541,7 +541,7 @@ TARGETS = {
                    r"wasser\s+zur\s+cdu", r"water\s+to\s+the\s+cdus?", r"(?:agua|eau)\s+(?:hacia\s+|vers\s+)?(?:la|el)\s+cdu",
                    r"vorlauf(?:wasser|temperatur)"),
     # a branch itself warms or cools ("würde Zweig 2 noch wärmer machen", "la réchaufferait"): warm/cool words only
-    "branch": words("ramas?", r"zweige?s?", "branches?", "branch", r"(?:la|le|lo)(?=\s+\w*(?:calent|enfri|réchauff|"
+    "branch": words("ramas?", r"zweige?s?", "branches?", "branch", r"zw\.(?=\s*\d)", r"(?:la|le|lo)(?=\s+\w*(?:calent|enfri|réchauff|"
                     r"refroid))"),
     "fan": words(r"fans?(?:[\s-]+(?:power|energy|speed))?", r"tower[\s-]+(?:power|energy)",
                  r"(?:potencia\s+de\s+(?:los\s+)?)?ventiladores", r"lüfter(?:leistung)?",
@@ -558,7 +558,8 @@ _FALL = ("lower(?:s|ed|ing)?", "drop(?:s|ped)?", "decreas(?:e|es|ed|ing)", "redu
 EFFECT_UP = {
     "temp": words(*_RISE, "warm(?:s|ed|ing|er)?", r"heat(?:s|ed|ing)?\s+up", "hotter", "climb(?:s|ed|ing)?",
                    r"calent\w*", r"erwärm\w*", r"réchauff\w*", "wärmer",
-                   r"aufheiz\w*", r"heiz\w*"),
+                   r"aufheiz\w*", r"heiz\w*", r"(?<!\bla\s)(?<!\bel\s)más\s+calientes?",
+                   r"(?<!\bla\s)(?<!\ble\s)plus\s+chaude?s?"),
     "power": words(*_RISE, r"work(?:s|ing)?\s+harder", r"spin(?:s|ning)?\s+(?:up|faster)", r"ramp(?:s|ed)?\s+up",
                     "more", "costs?", "adds?", "cuesta", "kostet", "coûte", r"trabaj\w*\s+más", r"travaill\w*\s+plus",
                     r"mehr\s+arbeiten", r"cost\w*", r"coût\w*", r"kost\w*", r"consum\w*\s+más", r"más\s+consumo",
@@ -569,7 +570,8 @@ EFFECT_UP = {
 EFFECT_BREAK = re.compile(r"\b(?:but|pero|aber|mais|while|whereas|mientras|während|tandis|yet|sino|sondern)\b|[;,]", I)
 EFFECT_DOWN = {
     "temp": words(*_FALL, "cool(?:s|ed|er)?", "colder", "fall(?:s|ing)?", "fell", r"brings?\s+down",
-                   r"more\s+cooling", r"enfr[ií]\w*", r"kühl\w*", r"refroidi\w*", "kälter"),
+                   r"more\s+cooling", r"enfr[ií]\w*", r"kühl\w*", r"abkühl\w*", r"abgekühlt", r"refroidi\w*", "kälter",
+                   r"(?<!\bla\s)(?<!\bel\s)más\s+fr[ií][oa]s?", r"(?<!\bla\s)(?<!\ble\s)plus\s+froide?s?"),
     "power": words(*_FALL, "sav(?:e|es|ed|ing)", "less", "cut(?:s|ting)?", r"slow(?:s|ed)?\s+down", "eas(?:e|es|ed)",
                     "idles?", "ahorra", "spart", "économise", r"trim\w*", r"relie\w*", r"ahorr\w*", r"spar\w*",
                     r"économis\w*", r"réduir\w*", r"reduc\w*", r"baisser\w*", r"entlast\w*", r"soulag\w*",
