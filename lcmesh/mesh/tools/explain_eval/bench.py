@@ -59,7 +59,8 @@ def run_bench_explain(quick: bool = False, testset_dir: Path = TESTSET) -> dict:
         "targets_met": {k: agg[k] >= v for k, v in TARGETS.items()},
     }  # fmt: skip
     result["corpus"] = {part: _summarized(corpus_verdict(part))
-                        for part in ("fresh5", "fresh4", "fresh3", "fresh2", "fresh", "dev3", "fresh_dev", "test", "dev")}
+                        for part in ("fresh6", "fresh5", "fresh4", "fresh3", "fresh2", "fresh", "dev3", "fresh_dev", "test",
+                                     "dev")}  # fmt: skip
     result["testset"] = testset_verdict(testset_dir)
     return result
 
@@ -110,8 +111,10 @@ FRESH4 = "fresh4.jsonl"  # issue 35: a second new test part, by two more outside
 # was tuned further after fresh3's one scoring; only its aggregates were read, once, at the end
 FRESH5 = "fresh5.jsonl"  # issue 35: a third new test part, by two more outside authors (t5, t6), written while the judge
 # was tuned on two more dev authors after fresh4's one scoring; only its aggregates were read, once, at the end
+FRESH6 = "fresh6.jsonl"  # issue 35: a fourth new test part, by authors t7 and t8, written while the judge was tuned after
+# fresh5's one scoring; only its aggregates were read, once, at the end of the session
 FRESH_PARTS = {"fresh": FRESH, "fresh_dev": FRESH_DEV, "fresh2": FRESH2, "dev3": DEV3, "fresh3": FRESH3, "fresh4": FRESH4,
-               "fresh5": FRESH5}  # fmt: skip
+               "fresh5": FRESH5, "fresh6": FRESH6}  # fmt: skip
 
 
 def load_fresh(folder: Path = CORPUS, name: str = FRESH) -> list[dict]:
@@ -281,7 +284,8 @@ def corpus_markdown(corpus: dict) -> list[str]:
     return lines + _old_corpus_markdown(corpus)
 
 
-_PARTS_35 = (("fresh5", "**fresh5** (held out: authors t5, t6)"), ("fresh4", "fresh4 (held out: t3, t4)"),
+_PARTS_35 = (("fresh6", "**fresh6** (held out: authors t7, t8)"), ("fresh5", "fresh5 (held out: t5, t6)"),
+             ("fresh4", "fresh4 (held out: t3, t4)"),
              ("fresh3", "fresh3 (held out: t1, t2)"), ("fresh2", "fresh2 (held out)"), ("fresh", "fresh (issue 24)"),
              ("dev3", "dev3 (tuned on: d1-d8)"))  # fmt: skip
 
@@ -293,8 +297,9 @@ def issue35_markdown(corpus: dict) -> list[str]:
     lines = [
         f"**Typed claims on new authors' texts** (issue 35). Every held-out part is on the test decisions, by outside "
         "authors who never saw the judge, its code or its misses; nobody who tuned the judge read one of their texts. "
-        f"`corpus/{FRESH5}` ({corpus.get('fresh5', {}).get('texts', 0)} texts by authors t5 and t6) was scored once, "
-        f"at the end; `corpus/{FRESH3}` (t1, t2) and `corpus/{FRESH4}` (t3, t4) were each scored once after a round of "
+        f"`corpus/{FRESH6}` ({corpus.get('fresh6', {}).get('texts', 0)} texts by authors t7 and t8) was scored once, "
+        f"at the end; `corpus/{FRESH3}` (t1, t2), `corpus/{FRESH4}` (t3, t4) and `corpus/{FRESH5}` (t5, t6) were each "
+        "scored once after a round of "
         "tuning and the judge was tuned further on new dev authors after that, so their figures here were seen "
         f"before the last round. `corpus/{DEV3}`: {corpus.get('dev3', {}).get('texts', 0)} texts by eight other outside authors on "
         "the dev decisions, read and tuned on (in-sample). A failed claim carries one flag (a setpoint given out of "
