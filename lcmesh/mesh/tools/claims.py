@@ -91,14 +91,9 @@ class Claim:
         self.verdict, self.fact = "holds", fact or self.fact
         return self
 
-    def fails(self, kind: str, detail: str, fact: str = "") -> Flag:
-        """Mark the claim failed; returns its flag."""
+    def fails(self, kind: str, detail: str, fact: str = "") -> Claim:
+        """Mark the claim failed with its flag."""
         self.verdict, self.fact, self.flag = "fails", fact or self.fact, Flag(kind, detail)
-        return self.flag
-
-    def fails_claim(self, kind: str, detail: str, fact: str = "") -> Claim:
-        """Mark the claim failed; returns the claim."""
-        self.fails(kind, detail, fact)
         return self
 
     def as_dict(self) -> dict:

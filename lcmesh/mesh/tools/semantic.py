@@ -1,4 +1,4 @@
-"""The chat's semantic check: every number in a text bound to the right entity and quantity, rankings and directions right.
+"""The chat's semantic check: every number bound to the right entity and quantity, rankings and directions right.
 
 A text passes only if each number it states is a value the data holds *for the entity and the
 quantity the sentence attaches it to*, each "hottest / lowest / highest" names the entity the data
@@ -54,8 +54,7 @@ def rank_fact(quantity: str | None, order: str, entity: str) -> Fact:
 
 def _fails(kind: str, span: str, detail: str, reason: str = "", relation: str = "equals") -> Claim:
     claim = Claim(relation, span, extra={"reason": reason} if reason else {})  # type: ignore[arg-type]
-    claim.fails(kind, detail)
-    return claim
+    return claim.fails(kind, detail)
 
 
 @dataclass

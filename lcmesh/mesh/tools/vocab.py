@@ -73,6 +73,9 @@ BRANCH_WORDS: dict[str, tuple[str, ...]] = {
     "de": ("zweige?", "str[aä]nge?", r"(?:blade-)?gruppen?", "ventile?"),
     "fr": ("branches?", r"groupes?(?:\s+de\s+lames)?", "vannes?"),
 }  # fmt: skip
+# a share written as a fraction ("valves 1/3 each"): the split, not two numbers and not the valves 1 and 3
+SHARE_FRACTION = re.compile(r"(?<![\d/])(?<!\d[.,])1/[2-9](?![\d/])(?![.,]\d)")
+
 # ordinals and counts of branches in the four languages ("the third branch", "la tercera rama", "der dritte Zweig",
 # "la troisième branche"; "all four branches", "las cuatro ramas", "alle vier Zweige", "les quatre branches")
 ORDINAL_WORDS: dict[str, int] = {

@@ -115,8 +115,8 @@ def check_answer(text: str, facts: list[ChatFact]) -> list[Claim]:
         if isinstance(f.value, str) and f.value:
             plain = plain.replace(f.value, "“”")
     problems = semantic.check(plain, values, rankings)
-    return problems + [Claim("equals", n, extra={"reason": "no_value"}).fails_claim("ungrounded_number",
-                                                                                  "no fact holds this number")
+    return problems + [Claim("equals", n, extra={"reason": "no_value"}).fails("ungrounded_number",
+                                                                            "no fact holds this number")
                        for n in ungrounded_numbers(text, facts) if not problems]  # fmt: skip
 
 

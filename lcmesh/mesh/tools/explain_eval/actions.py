@@ -20,6 +20,7 @@ from __future__ import annotations
 import re
 from bisect import bisect_left
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -45,6 +46,12 @@ class Context:
     pool: ValuePool
     claims: list[Claim] = field(default_factory=list)  # what the checks read, each with its verdict
 
+    @cached_property
+    def rounded_starts(self) -> frozenset[int]:
+        """Where the percentages that give the valve split rounded to sum to 100 % start (``rounded_shares``), read once
+        for grounding, coverage and the valve lists."""
+        return frozenset(m.start for m in rounded_shares(self))
+
     def claim(self, relation: str, text: str, **kw) -> Claim:
         """Record a claim read from the text (its verdict is set by the check)."""
         c = Claim(relation, text, **kw)  # type: ignore[arg-type]
@@ -53,7 +60,7 @@ class Context:
 
     def fail(self, relation: str, kind: str, detail: str, text: str = "", **kw) -> Flag:
         """Record a claim that fails and return its flag."""
-        return self.claim(relation, text or detail, **kw).fails(kind, detail)
+        return self.claim(relation, text or detail, **kw).fails(kind, detail).flag
 
     def entity(self, b: tx.BranchMention) -> int:
         return b.raw - 1 if b.ordinal else b.raw - self.base
@@ -135,7 +142,7 @@ def _valves_covered(ctx: Context) -> set[int]:
     last: int | None = None  # the one branch the previous sentence was about, for "its valve ..."
     previous_valves = False  # the previous sentence talked about valves: "Branches 2 and 3 stay at 0.32." goes on
     plural_before = False
-    rounded = {m.start for m in rounded_shares(ctx)}
+    rounded = ctx.rounded_starts
     for s in ctx.sentences:
         before_sentence = len(covered)
         has_valve_word = bool(tx.VALVE.search(s.text)) or "VALVE" in s.heading or "VALVE" in s.section
@@ -250,7 +257,7 @@ def check_valve_lists(ctx: Context) -> list[Flag]:
     valves, rec = ctx.rec.valves, ctx.rec
     if valves is None or valves.size < 2:
         return []
-    rounded = {m.start for m in rounded_shares(ctx)}
+    rounded = ctx.rounded_starts
     previous = rec.valves - rec.valve_changes if rec.valve_changes is not None else None
     flags = []
     for s in ctx.sentences:

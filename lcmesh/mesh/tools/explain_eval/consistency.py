@@ -134,7 +134,7 @@ def _comparatives(ctx: Context, s: tx.Sentence, mentions, data) -> list[Flag]:
             claim = ctx.claim("rank", s.text.strip(), entity=ctx.label(a), quantity=what)
             if diff < -_rank_tol(ctx, what, values):
                 flags.append(claim.fails("wrong_ranking", f"'{s.text.strip()}': {ctx.label(a)} is not "
-                                         f"{w.group().lower()} than {ctx.label(b)}"))  # fmt: skip
+                                         f"{w.group().lower()} than {ctx.label(b)}").flag)  # fmt: skip
             else:
                 claim.holds(f"{ctx.label(a)} is {w.group().lower()} than {ctx.label(b)}")
     return flags

@@ -43,8 +43,7 @@ class GroundingResult:
     grounded: int = 0
     derived: int = 0
     skipped: int = 0
-    problems: list[str] = field(default_factory=list)
-    claims: list[Claim] = field(default_factory=list)  # one per measurement, with its verdict
+    claims: list[Claim] = field(default_factory=list)  # one per measurement, with its verdict: the failed ones flag
 
     @property
     def score(self) -> float:
@@ -128,17 +127,17 @@ def check_grounding(
             claim.entity = None if branch is None else f"branch {branch + base}"
             wrong = _misattributed(hits, branch, pool)
             topic = _topic_of(rec.text, m)
-            if wrong is not None and all(h.name.endswith("band edge") for h in hits) and _LIMIT_WORD.search(clause_at(m.start)):
-                wrong = None  # "branch 3 stays inside the 20-40 °C band", "lejos del límite de 40 °C": the band, named
+            band = all(h.name.endswith("band edge") for h in hits)
+            if wrong is not None and band and _LIMIT_WORD.search(clause_at(m.start)):
+                wrong = None  # "stays inside the 20-40 °C band", "lejos del límite de 40 °C": the band, named
             if wrong is not None:
                 actual = f"branch {wrong[1] + base}'s value" if wrong[1] is not None else f"the {_labels(hits)}"
-                res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given for branch "
-                                                f"{wrong[0] + base} but is {actual}", _labels(hits)).detail)  # fmt: skip
+                claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given for branch {wrong[0] + base} but is "
+                            f"{actual}", _labels(hits))  # fmt: skip
             elif branch is None and topic is not None and _off_topic(hits, topic, pool):
                 claim.quantity = topic
-                res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given as the "
-                                                f"{topic.replace('_', ' ')} but is the {_labels(hits)}",
-                                                _labels(hits)).detail)  # fmt: skip
+                claim.fails("ungrounded_number", f"{_quote(rec.text, m)} is given as the {topic.replace('_', ' ')} "
+                            f"but is the {_labels(hits)}", _labels(hits))  # fmt: skip
             else:
                 res.grounded += 1
                 claim.quantity = hits[0].quantity
@@ -150,8 +149,8 @@ def check_grounding(
             res.derived += 1
             claim.holds("a difference or sum of the record's values")
             continue
-        res.problems.append(claim.fails("ungrounded_number", f"{_quote(rec.text, m)} matches no observation, action "
-                                        f"or fact value{_hint(m, pool, cfg)}").detail)  # fmt: skip
+        claim.fails("ungrounded_number", f"{_quote(rec.text, m)} matches no observation, action or fact value"
+                    f"{_hint(m, pool, cfg)}")  # fmt: skip
     return res
 
 
@@ -215,8 +214,8 @@ _TOPIC_NAMES = re.compile(
 )
 
 
-_SETPOINT_AFTER = re.compile(r"\W*(?:set[\s-]?point|SP|consigna|consigne|soll(?:wert)?)\W*(?:de|of|à|a|en|bei|auf)?\s*$",
-                             re.IGNORECASE)  # fmt: skip
+_SETPOINT_AFTER = re.compile(r"\W*(?:set[\s-]?point|SP|consigna|consigne|soll(?:wert)?)\W*"
+                             r"(?:de|of|à|a|en|bei|auf)?\s*$", re.IGNORECASE)  # fmt: skip
 _SUPPLY_NAME = re.compile(r"impulsi[oó]n|vorlauf\w*|d[ée]part|supply", re.IGNORECASE)
 _LIMIT_WORD = re.compile(r"\b(?:band|banda|bande|band(?:es)?|limit\w*|límite|grenze|edge|borde|bord|ceiling|margin\w*|"
                          r"marge|margen|abstand)\b", re.IGNORECASE)  # fmt: skip
@@ -232,7 +231,8 @@ def _topic_of(text: str, m: NumberMention) -> str | None:
         return after.lastgroup if after.lastgroup != "other" else None
     breaks = [b.end() for b in _CLAUSE_END.finditer(text, 0, m.start)]
     before = text[breaks[-1] if breaks else 0 : m.start]
-    item = [b.end() for b in _LIST_ITEM_END.finditer(before)]  # "Vorlauf-Soll 30,0 °C, Turm-Soll 29,4 °C": each its own
+    # "Vorlauf-Soll 30,0 °C, Turm-Soll 29,4 °C": each list item names its own number
+    item = [b.end() for b in _LIST_ITEM_END.finditer(before)]
     if item and _TOPIC_NAMES.search(before, item[-1]):
         before = before[item[-1] :]
     elif item and re.search(r"[^\W\d_]{2,}", before[item[-1] :]):

@@ -20,7 +20,7 @@ from lcmesh.mesh.tools import vocab
 from lcmesh.mesh.tools.claims import Flag
 from lcmesh.mesh.tools.explain_eval import text as tx
 from lcmesh.mesh.tools.explain_eval.actions import (
-    Context, check_coverage, check_direction, check_valve_lists, rounded_shares,
+    Context, check_coverage, check_direction, check_valve_lists,
 )  # fmt: skip
 from lcmesh.mesh.tools.explain_eval.consistency import check_bounds, check_physics, check_ranking
 from lcmesh.mesh.tools.explain_eval.grounding import _TOPIC_NAMES, ValuePool, check_grounding
@@ -61,7 +61,7 @@ def evaluate_record(data: Any, cfg: EvalConfig | None = None, line: int | None =
                   tx.decide_index_base(mentions, rec.n_branches, rec.index_base), pool)  # fmt: skip
     grounding = check_grounding(rec, ctx.numbers, pool, lambda pos: _clause_text(ctx, pos),
                                 lambda pos: _branch_at(ctx, pos), cfg, ctx.base,
-                                frozenset(m.start for m in rounded_shares(ctx)))  # fmt: skip
+                                ctx.rounded_starts)  # fmt: skip
     dims, coverage_flags = check_coverage(ctx)
     checked, consistent, direction_flags = check_direction(ctx)
     later = coverage_flags + direction_flags + check_ranking(ctx) + check_bounds(ctx) + check_physics(ctx) \

@@ -29,7 +29,6 @@ _NUM = re.compile(
     r"(?P<sign>[-−–+])?(?P<num>\d{1,3}(?:,\d{3})+(?:\.\d+)?(?![\d,])|\d+(?:\.\d+)?|\.\d+)(?P<exp>[eE][-+]?\d+)?"
 )
 _DATE = re.compile(r"\b\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2})?Z?)?\b")
-_SHARE_FRACTION = re.compile(r"(?<![\d/])(?<!\d[.,])1/[2-9](?![\d/])(?![.,]\d)")
 _PERCENT_LIST_AFTER = re.compile(r"(?:\s*/\s*\d+(?:[.,]\d+)?)+\s*%")
 _CLOCK = re.compile(r"\b\d{1,2}:\d{2}(?::\d{2})?\b")
 # words an index follows ("branch 2", "rama 2", "Schrank 3", "step 4"): the plant's entities in the four languages
@@ -122,7 +121,7 @@ def _mask(text: str) -> str:
     """Replace dates, clock times and shares written as a fraction ("valves 1/3 each": the split, which coverage
     reads) by letters so they are not read as numbers."""
     out = _DATE.sub(lambda m: "D" * len(m.group()), text)
-    out = _SHARE_FRACTION.sub(lambda m: "F" * len(m.group()), out)
+    out = vocab.SHARE_FRACTION.sub(lambda m: "F" * len(m.group()), out)
     return _CLOCK.sub(lambda m: "T" * len(m.group()), out)
 
 

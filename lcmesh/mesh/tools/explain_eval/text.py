@@ -113,18 +113,21 @@ def _decimal_commas(text: str, language: str = "en") -> str:
     return _DECIMAL_COMMA.sub(repl, _LEADING_ZERO_COMMA.sub("0.", text))
 
 
-_KEY_UNITS = {"c": "°C", "f": "°F", "k": "K", "kw": "kW", "mw": "MW", "w": "W", "psi": "psi", "kpa": "kPa", "pa": "Pa",
-              "pct": "%", "kg_s": "kg/s"}  # fmt: skip
+# a key's unit suffix, longest first: "kg_s" before "s", "kpa" before "pa"
+_KEY_UNITS = sorted({"c": "°C", "f": "°F", "k": "K", "kw": "kW", "mw": "MW", "w": "W", "psi": "psi", "kpa": "kPa",
+                     "pa": "Pa", "pct": "%", "kg_s": "kg/s"}.items(), key=lambda kv: -len(kv[0]))  # fmt: skip
+
+
+def _key_unit(key: str) -> str | None:
+    """The unit a JSON or CSV key ends in ("supply_sp_c" -> °C, "vorlauf_sollwert_f" -> °F), or None."""
+    return next((unit for suffix, unit in _KEY_UNITS if key.lower().endswith("_" + suffix)), None)
 
 
 def _with_key_unit(key: str, value):
     """A JSON value whose key ends in its unit ("supply_sp_c": 30.0, "vorlauf_sollwert_f": 86.0) keeps the unit."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (unit := _key_unit(key)) is None:
         return value
-    for suffix, unit in sorted(_KEY_UNITS.items(), key=lambda kv: -len(kv[0])):
-        if key.lower().endswith("_" + suffix):
-            return f"{value} {unit}"
-    return value
+    return f"{value} {unit}"
 
 
 def _flatten_json(text: str) -> str:
@@ -284,10 +287,8 @@ _CHANGE_COLUMN = re.compile(r"(?:^|_)(?:dir|direction|change|status|estado|accio
 
 
 def _cell_with_unit(name: str, cell: str) -> str:
-    if re.fullmatch(r"[-+]?\d+(?:\.\d+)?", cell):
-        with_unit = _with_key_unit(name, float(cell))
-        return cell if isinstance(with_unit, float) else f"{cell} {with_unit.split(' ', 1)[1]}"
-    return cell
+    unit = _key_unit(name) if re.fullmatch(r"[-+]?\d+(?:\.\d+)?", cell) else None
+    return cell if unit is None else f"{cell} {unit}"
 
 
 def _bare_table_lines(lines: list[str]) -> set[int]:
@@ -420,7 +421,6 @@ _ITEM_VALUE = r"(?:\s*\([^()]{1,20}\))?"  # "ramas 1 (0,324) y 2 (0,340)": each 
 _NUM_LIST = (r"\d+" + vocab.NOT_A_VALUE + r"(?:" + _ITEM_VALUE + r"\s*" + _JOIN + r"\s*\d+" + vocab.NOT_A_VALUE
              + r")*")  # fmt: skip
 _BRANCH = re.compile(r"\b" + _BRANCH_WORDS + r"[\s-]*(?:#|no\.\s*)?(?P<nums>" + _NUM_LIST + r")\b", I)
-_SHARE_FRACTION = re.compile(r"1/[2-9]")
 _PERCENT_AFTER = re.compile(r"(?:\s*/\s*\d+)*\s*(?:%|por\s*ciento|prozent|pour\s*cent)", I)
 # "V1=0,333", "V2 zu", "br. 3", "Br.2": a valve's or a branch's short name (a mention of that branch)
 _VALVE_SHORT = re.compile(r"\b(?:V|R|Z|br\.?\s?|zw\.?\s?)(?P<num>[1-9])\b(?![.,]\d)", I)
@@ -448,7 +448,7 @@ def branch_mentions(text: str) -> list[BranchMention]:
     found = []
     g, previous_end = -1, None
     for m in _BRANCH.finditer(text):
-        if _SHARE_FRACTION.fullmatch(m.group("nums")) or _PERCENT_AFTER.match(text, m.end()):
+        if vocab.SHARE_FRACTION.fullmatch(m.group("nums")) or _PERCENT_AFTER.match(text, m.end()):
             continue  # "valves 1/3" is a third each, "válvulas 33/33/33 %" shares: not valves 1 and 3
         # "branch 1 and branch 3 were held at 0.37 and 0.37" is one list, like "branches 1 and 3"
         if previous_end is None or not _LIST_JOIN.fullmatch(text, previous_end, m.start()):
