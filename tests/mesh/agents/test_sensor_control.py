@@ -204,12 +204,17 @@ def test_a_restarted_sensor_resumes_its_run_without_a_gap(start_agent, mesh_sett
     assert np.all(np.isfinite([s["blade_temp_max_k"] for s in states]))
 
 
+# the slow-policy test's speed: a 15 s plant step at 60x is a 0.25 s period, so the sensor waits 200 ms for each
+# (repeated) proposal; at the suite's 300x it waited 40 ms, which two busy cores can miss, and the sensor then holds
+SLOW_SPEED = 60.0
+
+
 class SlowController:
     """G36 that needs 2.5 control periods per decision (as an LLM might)."""
 
     name, version = "slow-g36", "0"
 
-    def __init__(self, system, period_s: float = 0.05):
+    def __init__(self, system, period_s: float = 15.0 / SLOW_SPEED):
         from lcmesh.twin.controllers.g36 import G36Controller
 
         self._inner, self._period_s = G36Controller(system), period_s
@@ -229,7 +234,7 @@ def test_a_slow_policy_in_worker_mode_repeats_its_last_action_instead_of_a_fallb
     from lcmesh.twin import controllers
 
     monkeypatch.setitem(controllers.REGISTRY, "slow-g36", f"{__name__}:SlowController")
-    settings = mesh_settings.model_copy(update={"controller": "slow-g36",
+    settings = mesh_settings.model_copy(update={"controller": "slow-g36", "speed_factor": SLOW_SPEED,
                                                 "control": mesh_settings.control.model_copy(update={"inline": False})})
     control = start_agent(ControlAgent, settings)
     sensor = start_agent(SensorAgent, settings)
