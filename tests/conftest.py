@@ -20,6 +20,9 @@ os.environ.setdefault("LCMESH_CONTROL__EXPLAINER", "renderer")
 # with two busy loops on 2 cores: a shipped policy's floor test took 23 s inside the tier (0.8 s on a quiet machine),
 # and 1.5 s alone with one thread against 3.8 s with two. The tests check decisions, not parallel speed.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# Benchmarks' units run one after another here: a Ray instance per bench test would cost seconds of the two cores each;
+# tests/bench/test_engine.py starts Ray and checks that it gives the serial run's table, row for row.
+os.environ.setdefault("LCMESH_BENCH_ENGINE", "serial")
 THREAD_EXIT_GRACE_S = 10.0  # a thread told to stop may still be on its way out when its owner returns
 _STARTED_BY: dict[threading.Thread, str] = {}  # a thread found running after a test -> that test's id
 
@@ -71,6 +74,12 @@ def _no_thread_left_by_the_session():
     left = _running_threads({threading.main_thread()})
     if left:
         _fail_if_left(left, "the session's fixtures")
+
+
+@pytest.fixture(autouse=True)
+def _private_result_cache(tmp_path, monkeypatch):
+    """Each test's benchmark units cache into its own file: no test reads another's (or the repo's) results."""
+    monkeypatch.setenv("LCMESH_BENCH_CACHE", str(tmp_path / "units.sqlite"))
 
 
 @pytest.fixture(scope="session", autouse=True)

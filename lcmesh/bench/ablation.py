@@ -17,10 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lcmesh.bench.engine import EngineSettings, cache_line, cache_summary, run_units
 from lcmesh.bench.machine import machine_info
-from lcmesh.bench.suite import GUARDRAILS_ON, TEST_DAYS, Day, load_day, run_day
-from lcmesh.twin.controllers import make_controller
-from lcmesh.twin.system import load_system
+from lcmesh.bench.suite import GUARDRAILS_ON, TEST_DAYS, Day, day_units
 
 ABLATION_DIR = Path(__file__).resolve().parent.parent / "artifacts" / "ppo" / "frontier"
 FIGURES = ("d_blade_pct", "cooling_kwh", "tower_fan_kwh", "pump_kwh")
@@ -64,33 +63,32 @@ def run_ablation(
     hours: float = 24.0,
     baselines: tuple[str, ...] = ("g36", "rule"),
     progress: Progress | None = None,
+    engine: EngineSettings | None = None,
 ) -> dict:
-    """Every seed of every case and each baseline on every day; per-case mean and std over the seeds."""
+    """Every seed of every case and each baseline on every day, behind the mesh's guardrails; per-case mean and std
+    over the seeds. The (policy or baseline, day) units run on ``engine`` (Ray by default, cached)."""
     if not days:
         raise ValueError("`days` must hold at least one day, got none")
     policies = ablation_policies(folder)
-    system = load_system(system_name)
-    traces = {d.label: load_day(d, system, hours) for d in days}
-    total = (len(baselines) + sum(len(v) for v in policies.values())) * len(days)
-    done = 0
-
-    def run_all(label: str, build) -> dict[str, dict]:
-        nonlocal done
-        rows = {}
+    runs = [(name, None, name) for name in baselines]
+    runs += [(f"case {case} seed {seed}", str(path.resolve()), "ppo") for case, seeds in policies.items()
+             for seed, path in seeds]  # fmt: skip
+    units = [u for tag, policy, name in runs for u in day_units(name, system_name, days, hours, policy=policy, tag=tag)]
+    outcomes = run_units(units, engine, progress)
+    each = iter(outcomes)
+    rows: dict[str, dict[str, dict]] = {}
+    for tag, _, _ in runs:
+        rows[tag] = {}
         for day in days:
-            rows[day.label] = run_day(system, traces[day.label], build())
-            done += 1
-            if progress is not None:
-                progress(f"{label} on {day.label}", done, total)
-        return rows
-
-    base = {name: run_all(name, lambda name=name: make_controller(name, system)) for name in baselines}
+            o = next(each)
+            if o.error is not None:
+                raise RuntimeError(f"{tag} on {day.label} failed: {o.error}")
+            rows[tag][day.label] = o.result
+    base = {name: rows[name] for name in baselines}
     cases = {}
-    for case, runs in policies.items():
-        seeds = []
-        for seed, path in runs:
-            rows = run_all(f"case {case} seed {seed}", lambda path=path: make_controller("ppo", system, policy=str(path)))
-            seeds.append(_seed_summary(seed, path, rows, base.get("g36")))
+    for case, seeds_paths in policies.items():
+        seeds = [_seed_summary(seed, path, rows[f"case {case} seed {seed}"], base.get("g36"))
+                 for seed, path in seeds_paths]  # fmt: skip
         cases[case] = {"title": CASE_TITLES.get(case, f"case {case}"), "seeds": seeds, **_over_seeds(seeds)}
     return {
         "machine": machine_info(),
@@ -99,8 +97,9 @@ def run_ablation(
         "days": [d.label for d in days],
         "folder": str(folder),
         "guardrails": GUARDRAILS_ON,
-        "baselines": {name: {"days": rows, "mean": _day_means(rows)} for name, rows in base.items()},
+        "baselines": {name: {"days": r, "mean": _day_means(r)} for name, r in base.items()},
         "cases": cases,
+        "cache": cache_summary(outcomes),
     }
 
 
@@ -174,6 +173,8 @@ def render_ablation(r: dict) -> str:
         lines.append(f"| {case} | " + " | ".join(cells) + " |")
     lines += ["", f"Machine: {m.get('cpu', '?')}, {m.get('logical_cpus', '?')} logical CPUs; commit {m.get('commit', '?')}; "
               f"{m.get('date', '?')}."]  # fmt: skip
+    if cached := cache_line(r.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     return "\n".join(lines) + "\n"
 
 

@@ -50,6 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lcmesh.bench.engine import (
+    EngineSettings, Outcome, Unit, cache_line, cache_summary, controller_version, run_units, twin_version,
+)  # fmt: skip
 from lcmesh.bench.machine import machine_info
 from lcmesh.distill.tree_config import TreeDistillConfig
 from lcmesh.twin.controllers import Controller, make_controller
@@ -187,39 +190,118 @@ def run_suite(
     reference: str = "lookahead",
     progress: Progress | None = None,
     guardrails: bool = True,
+    engine: EngineSettings | None = None,
 ) -> dict:
     """Each controller on each day; per-day figures, mean and std over the days, regret against ``reference``.
 
     Every controller runs behind the mesh's guardrails unless ``guardrails`` is False (the paper's setting).
-    A controller that fails to build or to run is reported with its error, not raised.
+    A controller that fails to build or to run is reported with its error, not raised. The (controller, day)
+    units run on ``engine`` (lcmesh/bench/engine.py: Ray, cached); the table is the serial run's, row for row.
     """
+    plan = suite_plan(controllers, system_name, days, hours, guardrails)
+    return suite_result(plan, run_units(plan.units, engine, progress), reference)
+
+
+@dataclass
+class SuitePlan:
+    """A suite's units and what assembles them: the controllers, the days, the errors found before running."""
+
+    controllers: list[str]
+    system_name: str
+    days: tuple[Day, ...]
+    hours: float
+    guardrails: bool
+    facts: list[dict]
+    build_errors: dict[str, str]
+    units: list[Unit]
+
+
+def suite_plan(controllers: list[str], system_name: str, days: tuple[Day, ...], hours: float,
+               guardrails: bool) -> SuitePlan:  # fmt: skip
+    """One unit per (controller, day); each controller is built once here for its version (code and artifacts)."""
     if not controllers:
         raise ValueError("`controllers` must name at least one controller, got none")
     if not days:
         raise ValueError("`days` must hold at least one day, got none")
     system = load_system(system_name)
-    traces = {d.label: load_day(d, system, hours) for d in days}
-    total, done = len(controllers) * len(days), 0
-    per_controller: dict[str, dict] = {}
+    build_errors, units = {}, []
     for name in controllers:
-        entry: dict = {"error": None, "days": {}}
-        for day in days:
-            if entry["error"] is None:
-                entry = _run_one(entry, system, traces[day.label], name, day.label, guardrails)
-            done += 1
-            if progress is not None:
-                progress(f"{name} on {day.label}", done, total)
+        try:
+            units += day_units(name, system_name, days, hours, guardrails)
+        except Exception as exc:  # noqa: BLE001 - a controller that cannot be built is a result of the benchmark
+            build_errors[name] = f"build failed: {type(exc).__name__}: {exc}"
+    facts = [_day_facts(d, load_day(d, system, hours)) for d in days]
+    return SuitePlan(list(controllers), system_name, tuple(days), hours, guardrails, facts, build_errors, units)
+
+
+def day_units(controller: str, system_name: str, days: Iterable[Day], hours: float, guardrails: bool = True,
+              policy: str | None = None, tag: str | None = None) -> list[Unit]:
+    """One unit per day of ``controller`` (with ``policy`` when given); it is built once here, for its version (code
+    and artifact files: the cache key) and so that one that cannot be built raises before anything runs."""
+    system = load_system(system_name)
+    built = make_controller(controller, system, **({"policy": policy} if policy else {}))
+    version = controller_version(built)
+    getattr(built, "close", lambda: None)()
+    # a system file is named by its absolute path: a Ray worker's working directory need not be ours
+    system_ref = str(Path(system_name).resolve()) if system_name.endswith(".json") else system_name
+    versions = (twin_version(), version, system.model_dump_json())
+    return [Unit("lcmesh.bench.suite:suite_day",
+                 {"system": system_ref, "trace": day.trace, "scenario": day.scenario, "hours": hours,
+                  "controller": controller, "guardrails": guardrails, "policy": policy},
+                 label=f"{system.name}: {tag or controller} on {day.label}", num_cpus=unit_cpus(controller),
+                 versions=versions) for day in days]  # fmt: skip
+
+
+def unit_cpus(controller: str) -> float:
+    """The CPUs a day of ``controller`` needs: one for the twin, the llama.cpp threads for the LLM controller."""
+    if controller != "llm":
+        return 1.0
+    from lcmesh.llm.controller import LlmControllerSettings
+
+    return float(max(1, LlmControllerSettings().control_threads))
+
+
+def suite_day(system: str, trace: str, scenario: str, hours: float, controller: str, guardrails: bool,
+              policy: str | None = None) -> dict:
+    """One unit of the suite: ``controller`` (built fresh: no carry-over between days) on one day."""
+    desc = load_system(system)
+    built = make_controller(controller, desc, **({"policy": policy} if policy else {}))
+    try:
+        return run_day(desc, load_trace(trace, desc, scenario=scenario, hours=hours), built,
+                       guardrails=MESH_GUARDRAILS if guardrails else None)  # fmt: skip
+    finally:
+        getattr(built, "close", lambda: None)()
+
+
+def suite_result(plan: SuitePlan, outcomes: list[Outcome], reference: str) -> dict:
+    """The suite's table from its units' outcomes (in the plan's order): a controller with a failed day is an error."""
+    by_controller: dict[str, list[Outcome]] = {}
+    for o in outcomes:
+        by_controller.setdefault(o.unit.kwargs["controller"], []).append(o)
+    per_controller: dict[str, dict] = {}
+    for name in plan.controllers:
+        if name in plan.build_errors:
+            per_controller[name] = {"error": plan.build_errors[name], "days": {}}
+            continue
+        entry: dict = {"error": None, "days": {}, "cached_days": 0}
+        for day, o in zip(plan.days, by_controller[name]):
+            if o.error is not None:
+                entry = {"error": f"run on {day.label} failed: {o.error}", "days": {}}
+                break
+            entry["days"][day.label] = o.result
+            entry["cached_days"] += int(o.cached)
         if entry["error"] is None:
             entry["mean"], entry["std"] = _mean_std(list(entry["days"].values()))
         per_controller[name] = entry
     result = {
         "machine": machine_info(),
-        "system": system_name,
-        "hours": hours,
+        "system": plan.system_name,
+        "hours": plan.hours,
         "reference": reference,
-        "guardrails": GUARDRAILS_ON if guardrails else GUARDRAILS_OFF_TEXT,
-        "days": [_day_facts(d, traces[d.label]) for d in days],
+        "guardrails": GUARDRAILS_ON if plan.guardrails else GUARDRAILS_OFF_TEXT,
+        "days": plan.facts,
         "controllers": per_controller,
+        "cache": cache_summary(outcomes),
     }
     result["regret_note"] = _add_regret(per_controller, reference)
     return result
@@ -233,19 +315,6 @@ def _day_facts(day: Day, trace: Trace) -> dict:
         "mean_load_kw": float(trace.cabinet_load_w.sum(axis=1).mean() / 1e3),
         "mean_wet_bulb_c": float(trace.wet_bulb_k.mean() - _K),
     }
-
-
-def _run_one(entry: dict, system: SystemDescription, trace: Trace, name: str, label: str, guardrails: bool = True) -> dict:
-    """Add one day to ``entry``, or return an entry that holds the error (a fresh controller per day, no carry-over)."""
-    try:
-        controller = make_controller(name, system)
-    except Exception as exc:  # noqa: BLE001 - a controller that cannot be built is a result of the benchmark
-        return {"error": f"build failed: {type(exc).__name__}: {exc}", "days": {}}
-    try:
-        entry["days"][label] = run_day(system, trace, controller, guardrails=MESH_GUARDRAILS if guardrails else None)
-    except Exception as exc:  # noqa: BLE001 - so is one that fails mid-run
-        return {"error": f"run on {label} failed: {type(exc).__name__}: {exc}", "days": {}}
-    return entry
 
 
 def _mean_std(rows: list[dict]) -> tuple[dict, dict]:
@@ -350,6 +419,8 @@ def render_suite(r: dict) -> str:
                       for c in checks]  # fmt: skip
     if "plot" in r:
         lines += ["", f"![D_blade against cooling energy, per controller]({r['plot']})"]
+    if "plot_days" in r:
+        lines += ["", f"![D_blade, cooling energy and hottest blade per controller and day]({r['plot_days']})"]
     lines += ["", "### Days", "", "| label | trace | scenario | mean IT load kW | mean wet bulb C |"]
     lines.append("|---" * 5 + "|")
     for d in r["days"]:
@@ -361,6 +432,8 @@ def render_suite(r: dict) -> str:
         f"commit {m['commit']}; {m['date']}. Mean wall time of a day's loop: {', '.join(walls) or 'none'}."
     )
     lines += ["", machine]
+    if cached := cache_line(r.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     return "\n".join(lines)
 
 
@@ -369,16 +442,15 @@ LCOPT_HRU_EFFECT = ("LC-Opt Section 7.3 (case 7, N=2, m=2, C=5, B=3): the HRU cu
 
 
 def run_hru(controllers: list[str], days: tuple[Day, ...] = TEST_DAYS, hours: float = 24.0,
-            progress: Progress | None = None, guardrails: bool = True) -> dict:
-    """Each controller on ``days`` on lcopt-5 without and with the heat-recovery unit (lcopt-5-hru)."""
-    runs = {}
-    for system in ("lcopt-5", "lcopt-5-hru"):
-        def step(what: str, done: int, total: int, system=system) -> None:
-            if progress is not None:
-                progress(f"{system}: {what}", done, total)
-
-        runs[system] = run_suite(controllers, system, days, hours=hours, reference="none", progress=step,
-                                 guardrails=guardrails)  # fmt: skip
+            progress: Progress | None = None, guardrails: bool = True, engine: EngineSettings | None = None) -> dict:
+    """Each controller on ``days`` on lcopt-5 without and with the heat-recovery unit (lcopt-5-hru): both systems'
+    units in one submission, so the engine keeps every CPU busy."""
+    plans = {system: suite_plan(controllers, system, days, hours, guardrails) for system in ("lcopt-5", "lcopt-5-hru")}
+    outcomes = run_units([u for p in plans.values() for u in p.units], engine, progress)
+    runs, start = {}, 0
+    for system, plan in plans.items():
+        runs[system] = suite_result(plan, outcomes[start:start + len(plan.units)], reference="none")
+        start += len(plan.units)
     rows = {}
     for name in controllers:
         off, on = runs["lcopt-5"]["controllers"][name], runs["lcopt-5-hru"]["controllers"][name]
@@ -392,7 +464,7 @@ def run_hru(controllers: list[str], days: tuple[Day, ...] = TEST_DAYS, hours: fl
                       "cooling_cut_pct": _cut(off["mean"]["cooling_kwh"], on["mean"]["cooling_kwh"])}  # fmt: skip
     return {"machine": machine_info(), "hours": hours, "days": [d.label for d in days], "rows": rows,
             "guardrails": GUARDRAILS_ON if guardrails else GUARDRAILS_OFF_TEXT, "published": LCOPT_HRU_EFFECT,
-            "runs": runs}  # fmt: skip
+            "runs": runs, "cache": cache_summary(outcomes)}  # fmt: skip
 
 
 def _cut(before: float, after: float) -> float:
@@ -423,6 +495,8 @@ def render_hru(r: dict) -> str:
         )  # fmt: skip
     m = r["machine"]
     lines += ["", f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}."]
+    if cached := cache_line(r.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     return "\n".join(lines)
 
 
@@ -506,3 +580,34 @@ def plot_pareto(r: dict, path: str | Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=9)
     return save_figure(fig, path, dpi=110)
+
+
+def plot_days(r: dict, path: str | Path) -> Path:
+    """D_blade, cooling energy and the hottest blade per controller and day: three panels of grouped bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    working = [(n, e) for n, e in r["controllers"].items() if e["error"] is None]
+    labels = [d["label"] for d in r["days"]]
+    panels = (("d_blade_pct", "D_blade % (higher is better)"), ("cooling_kwh", "cooling kWh (fans + pumps)"),
+              ("blade_max_c", "hottest blade C (band top 40 C)"))  # fmt: skip
+    fig, axes = plt.subplots(3, 1, figsize=(max(8.0, 0.9 * len(labels) + 3), 9), sharex=True)
+    x = np.arange(len(labels))
+    width = 0.8 / max(len(working), 1)
+    for ax, (key, title) in zip(axes, panels):
+        for i, (name, e) in enumerate(working):
+            ax.bar(x + (i - (len(working) - 1) / 2) * width, [e["days"][d][key] for d in labels], width,
+                   color=f"C{i % 10}", label=name)  # fmt: skip
+        ax.set_ylabel(title, fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].set_ylim(bottom=max(0.0, min((e["days"][d]["d_blade_pct"] for _, e in working for d in labels),
+                                         default=0.0) - 5.0), top=101.0)  # fmt: skip
+    hottest = [e["days"][d]["blade_max_c"] for _, e in working for d in labels]
+    axes[2].set_ylim(bottom=min(hottest, default=20.0) - 3.0, top=max(max(hottest, default=40.0), 40.0) + 1.0)
+    axes[2].axhline(40.0, color="k", lw=0.8, ls="--")
+    axes[-1].set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
+    axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=8, ncols=min(len(working), 8), frameon=False)
+    fig.suptitle(f"{r['system']}: per controller and held-out day", fontsize=11)
+    return save_figure(fig, path, dpi=100)

@@ -32,6 +32,14 @@ ScenarioOpt = Annotated[
                       "lcopt (LC-Opt's +15 K and 25:1 branch skew); docs/traces.md")
 ]
 JsonOpt = Annotated[Optional[Path], typer.Option("--json", help="write the result as JSON here")]
+EngineOpt = Annotated[str, typer.Option(help="ray (a local instance unless --address) or serial (one unit after "
+                                        "another, here)")]
+AddressOpt = Annotated[Optional[str], typer.Option(help="a Ray cluster to run the units on (default: RAY_ADDRESS, "
+                                                   "else a local instance sized to this machine)")]
+FreshOpt = Annotated[bool, typer.Option(help="recompute every unit, ignoring (and then overwriting) the result cache")]
+CacheOpt = Annotated[Optional[Path], typer.Option(help="the result cache, a SQLite file (default: "
+                                                  "$LCMESH_BENCH_CACHE or runs/cache/units.sqlite)")]
+NoCacheOpt = Annotated[bool, typer.Option(help="neither read nor write the result cache")]
 
 
 def fail(message: str) -> None:
@@ -46,6 +54,33 @@ def load_system_or_fail(name: str):
         return load_system(name)
     except SystemDescriptionError as exc:
         fail(str(exc))
+
+
+def engine_settings(engine: str, address: str | None, fresh: bool, cache: Path | None, no_cache: bool = False):
+    """The benches' engine options as EngineSettings (lcmesh/bench/engine.py); a clear error for a bad one."""
+    from lcmesh.bench.engine import EngineSettings
+
+    try:
+        settings = EngineSettings(engine=engine, address=address, fresh=fresh)
+    except ValueError as exc:
+        fail(f"`--engine`: {exc}")
+    if address and engine == "serial":
+        fail("`--address` runs the units on a Ray cluster; it cannot go with `--engine serial`")
+    if no_cache:
+        settings.cache = None
+    elif cache is not None:
+        if cache.is_dir():
+            fail(f"`--cache` must be a SQLite file, got the folder {cache}")
+        settings.cache = cache
+    return settings
+
+
+def say_cache(result: dict) -> None:
+    """One line on the console: how many units the cache gave."""
+    from lcmesh.bench.engine import cache_line
+
+    if line := cache_line(result.get("cache", {})):
+        console.print(line)
 
 
 def write_bench(json_out: Path | None, markdown: Path | None, section: str, result: dict, render=None) -> None:

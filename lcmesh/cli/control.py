@@ -11,7 +11,8 @@ from typing import Annotated, Any, Callable, Optional
 import typer
 
 from lcmesh.cli.common import (
-    JsonOpt, bench_app, console, distill_app, fail, progress_bar, stage_progress, train_app, write_bench, write_json,
+    AddressOpt, CacheOpt, EngineOpt, FreshOpt, JsonOpt, NoCacheOpt, bench_app, console, distill_app, engine_settings,
+    fail, progress_bar, say_cache, stage_progress, train_app, write_bench, write_json,
 )  # fmt: skip
 
 
@@ -160,13 +161,20 @@ def bench_suite(
                                              "guardrails, as the mesh applies it (off: the paper's setting)")] = True,
     hru: Annotated[bool, typer.Option(help="each controller without and with the heat-recovery unit (lcopt-5 and "
                                       "lcopt-5-hru) instead of the regret table")] = False,
+    engine: EngineOpt = "ray",
+    address: AddressOpt = None,
+    fresh: FreshOpt = False,
+    cache: CacheOpt = None,
+    no_cache: NoCacheOpt = False,
 ) -> None:
     """Every controller on the held-out days (lcmesh/bench/suite.py): mean ± std, per-day figures, regret (issue 13)."""
     from lcmesh.bench.suite import (
-        TEST_DAYS, VALIDATION_DAYS, days_named, deploy_checks, plot_pareto, render_hru, render_suite, run_hru, run_suite,
+        TEST_DAYS, VALIDATION_DAYS, days_named, deploy_checks, plot_days, plot_pareto, render_hru, render_suite,
+        run_hru, run_suite,
     )  # fmt: skip
     from lcmesh.cli.common import load_system_or_fail
 
+    settings = engine_settings(engine, address, fresh, cache, no_cache)
     names = [n.strip() for n in controllers.split(",") if n.strip()]
     if not names:
         fail(f"`--controllers` must name at least one controller, e.g. static,g36; got {controllers!r}")
@@ -180,7 +188,8 @@ def bench_suite(
         fail(f"`--days` must name at least one day, got {days!r}")
     if hru:
         with stage_progress("held-out days, without and with the HRU") as on_progress:
-            result = run_hru(names, chosen, hours=hours, progress=on_progress, guardrails=guardrails)
+            result = run_hru(names, chosen, hours=hours, progress=on_progress, guardrails=guardrails, engine=settings)
+        say_cache(result)
         for name, row in result["rows"].items():
             if row["error"] is not None:
                 console.print(f"[yellow]{name}: not run[/yellow] ({row['error']})")
@@ -191,7 +200,8 @@ def bench_suite(
         return
     with stage_progress("held-out days") as on_progress:
         result = run_suite(names, system, chosen, hours=hours, reference=reference, progress=on_progress,
-                           guardrails=guardrails)  # fmt: skip
+                           guardrails=guardrails, engine=settings)  # fmt: skip
+    say_cache(result)
     for check in deploy_checks(result):
         colour = "green" if check["met"] else "yellow"
         console.print(f"[{colour}]{check['controller']}: {check['target']}: {check['measured']}[/{colour}]")
@@ -201,6 +211,7 @@ def bench_suite(
     if result["regret_note"]:
         console.print(result["regret_note"])
     result["plot"] = str(plot_pareto(result, plots / "suite_pareto.png"))
+    result["plot_days"] = str(plot_days(result, plots / "suite_days.png"))
     write_bench(json_out, markdown, "suite", result, render=render_suite)
 
 
@@ -216,6 +227,11 @@ def bench_ablation(
     days: Annotated[Optional[str], typer.Option(help="comma-separated test-day labels (default: all)")] = None,
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
+    engine: EngineOpt = "ray",
+    address: AddressOpt = None,
+    fresh: FreshOpt = False,
+    cache: CacheOpt = None,
+    no_cache: NoCacheOpt = False,
 ) -> None:
     """Every seed of every PPO case on the held-out days, mean ± std over seeds (lcmesh/bench/ablation.py, issue 13)."""
     from lcmesh.bench.ablation import render_ablation, run_ablation
@@ -223,12 +239,14 @@ def bench_ablation(
     from lcmesh.cli.common import load_system_or_fail
 
     load_system_or_fail(system)
+    settings = engine_settings(engine, address, fresh, cache, no_cache)
     if not folder.is_dir():
         fail(f"`--folder` must be a folder of case{{C}}-seed{{S}}.json policies, got {folder}")
     try:
         chosen = TEST_DAYS if days is None else days_named([d.strip() for d in days.split(",") if d.strip()])
         with stage_progress("ablation seeds on the held-out days") as on_progress:
-            result = run_ablation(folder, system, chosen, hours=hours, progress=on_progress)
-    except (ValueError, FileNotFoundError) as exc:
+            result = run_ablation(folder, system, chosen, hours=hours, progress=on_progress, engine=settings)
+    except (ValueError, FileNotFoundError, RuntimeError) as exc:
         fail(str(exc))
+    say_cache(result)
     write_bench(json_out, markdown, "ablation", result, render=render_ablation)

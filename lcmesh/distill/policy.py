@@ -213,6 +213,9 @@ class PpoController:
         path = Path(policy) if policy is not None else DEFAULT_POLICY
         self.hold = hold
         self.nets, self.meta = loaded if loaded is not None else load_policy(path)
+        # what a result depends on (the benches' cache keys, lcmesh/bench/engine.py)
+        self.artifact_files = (() if loaded is not None
+                               else (path.with_suffix(".json"), path.with_suffix(".safetensors")))  # fmt: skip
         layout = FeatureLayout(**self.meta.layout)
         layout.check(system, f"policy {path}", pool_cells=pool_cells)
         for name, net in self.nets.items():

@@ -215,6 +215,7 @@ class TreeController:
         path = Path(policy) if policy is not None else DEFAULT_TREES
         self.hold = hold
         self.trees, layout, self.manifest = load_trees(path)
+        self.artifact_files = (path,)  # what a result depends on (the benches' cache keys)
         layout.check(system, f"tree file {path}", pool_cells=pool_cells)
         self.version = str(self.manifest.get("version", "1"))
         self.features = FeatureBuilder(system, layout)

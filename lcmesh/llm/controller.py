@@ -124,6 +124,9 @@ class LlmController:
         self.fallback = make_fallback(fb, system) if isinstance(fb, str) else fb
         self.hold = hold
         self.version = f"{self.backend.model_id}|fallback={self.fallback.name}"
+        # what a result depends on (the benches' cache keys, lcmesh/bench/engine.py): model, adapter, the fallback's
+        self.artifact_files = (*(p for p in (getattr(self.backend, "gguf", None), getattr(self.backend, "lora", None))
+                                 if p is not None), *getattr(self.fallback, "artifact_files", ()))  # fmt: skip
         C, B, N = system.cabinets.count, system.cabinets.branches, system.towers.count
         self._fields = cabinet_fields(B)
         self._action = PlantAction(np.zeros(C), np.zeros(C), np.full((C, B), 1.0 / B), np.zeros(N))
