@@ -73,7 +73,8 @@ def run_ablation(
     runs = [(name, None, name) for name in baselines]
     runs += [(f"case {case} seed {seed}", str(path.resolve()), "ppo") for case, seeds in policies.items()
              for seed, path in seeds]  # fmt: skip
-    units = [u for tag, policy, name in runs for u in day_units(name, system_name, days, hours, policy=policy, tag=tag)]
+    units = [u for tag, policy, name in runs
+             for u in day_units(name, system_name, days, hours, options={"policy": policy} if policy else None, tag=tag)]
     outcomes = run_units(units, engine, progress)
     each = iter(outcomes)
     rows: dict[str, dict[str, dict]] = {}

@@ -304,6 +304,10 @@ def markdown(report: dict[str, Any]) -> str:
               f"{m.get('commit', '?')}, {m.get('date', '?')}."]
     for part, run in report.get("parts_measured", {}).items():  # "Parts test and b-test": when, if not the above
         lines.append(f"{part}: {run}.")
+    from lcmesh.bench.engine import cache_line
+
+    if cached := cache_line(report.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     return "\n".join(lines)
 
 
@@ -320,6 +324,38 @@ def site_runner(site_path: Path) -> tuple[Any, Callable[[str, dict], registry.To
 
     run.runner = runner
     return data, run
+
+
+def part_name(question_set: str, split: str) -> str:
+    return split if question_set == "a" else f"{question_set}-{split}"
+
+
+def run_part(planner: str, question_set: str, split: str, site: str) -> dict:
+    """One unit of ``lcmesh bench chat``: ``planner`` (llm, rules, openai; oracle: the expected calls) on one part's
+    questions, on the recorded ``site``; the part's summary."""
+    from lcmesh.mesh.agents.ui.planner import make_planner
+
+    sources, run_tool = site_runner(Path(site))
+    questions = load_questions(split, question_set)
+    made = None if planner == "oracle" else make_planner(planner)
+    engine = bench_engine(sources, made or OraclePlanner(questions), run_tool)
+    if made is None:  # the ceiling: the expected calls exactly, no second opinion from the rules
+        engine.second_opinion = lambda message, plan: plan
+    return summarize(run_split(questions, engine, run_tool))
+
+
+def part_units(planners: Iterable[str], parts: Iterable[tuple[str, str]], site: Path) -> list:
+    """One engine unit per (planner, part); the key holds the assistant's code, the planner's model and adapter, the
+    question files and the recorded site."""
+    from lcmesh.bench.engine import Unit, tree_digest
+
+    site_version = f"site:{Path(site).resolve().parent.name}:{tree_digest(Path(site).resolve())}"
+    code = tree_digest("mesh", "llm", "bench/chat.py", "bench/data", "artifacts/llm-planner", "prompts")
+    parts = list(parts)
+    return [Unit("lcmesh.bench.chat:run_part", {"planner": name, "question_set": qs, "split": sp,
+                                               "site": str(Path(site).resolve())},
+                 label=f"{name} on {part_name(qs, sp)}", versions=(code, site_version))
+            for name in planners for qs, sp in parts]  # fmt: skip
 
 
 def bench_engine(sources: Any, planner: Any, run_tool: Callable) -> Any:

@@ -15,6 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.bench.actions import Progress, render_actions, run_bench_actions
+from lcmesh.bench.engine import (
+    EngineSettings, Unit, cache_line, cache_summary, controller_version, run_units, tree_digest, twin_version,
+)  # fmt: skip
 from lcmesh.bench.machine import machine_info
 from lcmesh.distill.ppo_config import CASES
 from lcmesh.twin.controllers import make_controller
@@ -40,7 +43,7 @@ def case_policy(case: int | str) -> Path:
 def evaluate(
     system_name: str,
     controller: str,
-    policy: Path | None = None,
+    policy: Path | str | None = None,
     hours: float = 24.0,
     rewards: bool = True,
     scenario: str = "lcopt",
@@ -61,7 +64,7 @@ def evaluate(
     return row
 
 
-def valve_power_correlation(system_name: str, controller: str, policy: Path | None, hours: float = 24.0) -> dict:
+def valve_power_correlation(system_name: str, controller: str, policy: Path | str | None, hours: float = 24.0) -> dict:
     """Pearson, Spearman and mutual information between branch power share and valve fraction (Table 5)."""
     from scipy.stats import pearsonr, spearmanr
     from sklearn.feature_selection import mutual_info_regression
@@ -105,34 +108,71 @@ def record_series(system_name: str, controller: str, policy: Path | None, hours:
     return {k: np.asarray(v) for k, v in rec.items()}
 
 
-def run_bench_control(quick: bool = False, plot_dir: Path | None = None, progress: Progress | None = None) -> dict:
+def run_bench_control(quick: bool = False, plot_dir: Path | None = None, progress: Progress | None = None,
+                      engine: EngineSettings | None = None) -> dict:  # fmt: skip
     """Every table; ``quick`` shortens the day to 2 h and skips the scaling study and rewards.
 
-    ``progress(stage, done, total)`` follows the setpoint-tracking and action-sweep runs (issue 12).
+    Every closed-loop run (a table row, a scaling cell, a correlation) is a unit on ``engine`` (Ray by default,
+    cached: lcmesh/bench/engine.py); ``progress(stage, done, total)`` follows them, then the setpoint-tracking and
+    action-sweep runs (issue 12).
     """
     hours = 2.0 if quick else 24.0
     result: dict = {"machine": machine_info(), "trace": f"{FRONTIER_DAY}, lcopt scenario (+15 K, 25:1 skew, 225 kW)",
                     "system": PAPER_SYSTEM, "hours": hours, "ablation": {}}  # fmt: skip
-    result["ablation"]["static"] = evaluate(PAPER_SYSTEM, "static", hours=hours, rewards=not quick)
-    result["ablation"]["1"] = {"title": "Baseline control (ASHRAE G36)",
-                               **evaluate(PAPER_SYSTEM, "g36", hours=hours, rewards=not quick)}  # fmt: skip
+    slots: list[tuple[str, ...]] = []
+    units: list[Unit] = []
+
+    def add(slot: tuple[str, ...], fn: str, system: str, controller: str, policy: Path | None = None, **kw) -> None:
+        kwargs = {"system_name": system, "controller": controller, "policy": str(policy) if policy else None, **kw}
+        versions = (twin_version(), _controller_version(system, controller, str(policy) if policy else None),
+                    tree_digest("distill"))  # fmt: skip
+        units.append(Unit(f"lcmesh.bench.control:{fn}", kwargs, label=" ".join(slot), versions=versions))
+        slots.append(slot)
+
+    titles: dict[str, dict] = {"static": {}, "1": {"title": "Baseline control (ASHRAE G36)"}}
+    add(("ablation", "static"), "evaluate", PAPER_SYSTEM, "static", hours=hours, rewards=not quick)
+    add(("ablation", "1"), "evaluate", PAPER_SYSTEM, "g36", hours=hours, rewards=not quick)
     for case, spec in CASES.items():
         policy = case_policy(case)
         if not policy.with_suffix(".json").exists():
             result["ablation"][str(case)] = {"title": spec.title, "missing": f"no policy at {policy}.json"}
             continue
         meta = json.loads(policy.with_suffix(".json").read_text())["manifest"]
-        row = evaluate(PAPER_SYSTEM, "ppo", policy, hours=hours, rewards=not quick)
-        row.update(title=spec.title, training_wall_s=meta["metrics"].get("wall_s"),
-                   training_env_steps=meta["metrics"].get("env_steps"))  # fmt: skip
-        result["ablation"][str(case)] = row
+        titles[str(case)] = {"title": spec.title, "training_wall_s": meta["metrics"].get("wall_s"),
+                             "training_env_steps": meta["metrics"].get("env_steps")}  # fmt: skip
+        add(("ablation", str(case)), "evaluate", PAPER_SYSTEM, "ppo", policy, hours=hours, rewards=not quick)
     extra = case_policy("7-64k")  # case 7 under the 64k-step schedule the other cases had (see docs/controllers.md)
     if extra.with_suffix(".json").exists():
-        row = evaluate(PAPER_SYSTEM, "ppo", extra, hours=hours, rewards=not quick)
         meta = json.loads(extra.with_suffix(".json").read_text())["manifest"]
-        row.update(title="CA & multi-head, 64k-step std schedule", training_wall_s=meta["metrics"].get("wall_s"),
-                   training_env_steps=meta["metrics"].get("env_steps"))  # fmt: skip
-        result["ablation"]["7b"] = row
+        titles["7b"] = {"title": "CA & multi-head, 64k-step std schedule",
+                        "training_wall_s": meta["metrics"].get("wall_s"),
+                        "training_env_steps": meta["metrics"].get("env_steps")}  # fmt: skip
+        add(("ablation", "7b"), "evaluate", PAPER_SYSTEM, "ppo", extra, hours=hours, rewards=not quick)
+    if not quick and case_policy(7).with_suffix(".json").exists():
+        for name in SCALE_SYSTEMS:
+            add(("scaling", name, "g36"), "evaluate", name, "g36", rewards=False, scenario="frontier")
+            add(("scaling", name, "case7"), "evaluate", name, "ppo", case_policy(7), rewards=False, scenario="frontier")
+        for case in (6, 7):
+            if case_policy(case).with_suffix(".json").exists():
+                add(("correlation", str(case)), "valve_power_correlation", PAPER_SYSTEM, "ppo", case_policy(case))
+    trees = ARTIFACTS / "trees" / "case7.report.json"
+    if trees.exists():
+        add(("trees", "closed_loop"), "evaluate", PAPER_SYSTEM, "tree", ARTIFACTS / "trees" / "case7.json", hours=hours,
+            rewards=False)  # fmt: skip
+    outcomes = run_units(units, engine, progress)
+    for slot, o in zip(slots, outcomes):
+        if o.error is not None:
+            raise RuntimeError(f"{' '.join(slot)} failed: {o.error}")
+        if slot[0] == "ablation":
+            result["ablation"][slot[1]] = {**titles.get(slot[1], {}), **o.result}
+        elif slot[0] == "scaling":
+            result.setdefault("scaling", {}).setdefault(slot[1], {})[slot[2]] = o.result
+        elif slot[0] == "correlation":
+            result.setdefault("correlation", {})[slot[1]] = o.result
+        else:
+            result["trees"] = {**json.loads(trees.read_text()), "closed_loop": o.result}
+    result["ablation"] = {k: result["ablation"][k] for k in sorted(result["ablation"], key=_row_order)}
+    result["cache"] = cache_summary(outcomes)
     g36 = result["ablation"]["1"]
     c7 = result["ablation"].get("7", {})
     if "d_blade_pct" in c7:
@@ -141,24 +181,20 @@ def run_bench_control(quick: bool = False, plot_dir: Path | None = None, progres
             "case7_10_points_above_g36": c7["d_blade_pct"] >= g36["d_blade_pct"] + 10.0,
             "case7_ct_le_0p9_g36": c7["ct_power_kw_avg"] <= 0.9 * g36["ct_power_kw_avg"],
         }
-    if not quick and case_policy(7).with_suffix(".json").exists():
-        result["scaling"] = {}
-        for name in SCALE_SYSTEMS:
-            result["scaling"][name] = {"g36": evaluate(name, "g36", rewards=False, scenario="frontier"),
-                                       "case7": evaluate(name, "ppo", case_policy(7), rewards=False,
-                                                         scenario="frontier")}  # fmt: skip
-        result["correlation"] = {}
-        for case in (6, 7):
-            if case_policy(case).with_suffix(".json").exists():
-                result["correlation"][str(case)] = valve_power_correlation(PAPER_SYSTEM, "ppo", case_policy(case))
-    trees = ARTIFACTS / "trees" / "case7.report.json"
-    if trees.exists():
-        result["trees"] = json.loads(trees.read_text())
-        result["trees"]["closed_loop"] = evaluate(PAPER_SYSTEM, "tree", ARTIFACTS / "trees" / "case7.json", hours=hours, rewards=False)
     if plot_dir is not None:
         result["plots"] = plot_control(result, plot_dir, hours)
     result["actions"] = run_bench_actions(hours=hours, progress=progress, plot_dir=plot_dir)
     return result
+
+
+def _row_order(key: str) -> tuple[int, str]:
+    """static, 1 (G36), the cases in order, 7b after 7."""
+    return (-1, key) if key == "static" else (int(key.rstrip("b")), key)
+
+
+def _controller_version(system_name: str, controller: str, policy: str | None) -> str:
+    built = make_controller(controller, load_system(system_name), **({"policy": policy} if policy else {}))
+    return controller_version(built)
 
 
 def plot_control(result: dict, plot_dir: Path, hours: float) -> list[str]:
@@ -286,6 +322,8 @@ def render_control(r: dict) -> str:
                           f"CT {cl['ct_power_kw_avg']:.1f} kW."]  # fmt: skip
     for p in r.get("plots", []):
         lines += ["", f"![{Path(p).stem}]({p})"]
+    if cached := cache_line(r.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     if "actions" in r:
         lines += ["", render_actions(r["actions"], level=3)]
     return "\n".join(lines)

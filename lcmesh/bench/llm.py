@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from lcmesh.bench.engine import cache_line
 from lcmesh.bench.machine import machine_info
 
 EVAL_TRACE = "frontier-2024-04-07"
@@ -66,8 +67,8 @@ class BenchLlmConfig:
         return cfg
 
 
-def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = None) -> dict:
-    """All figures as one JSON-ready dict."""
+def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = None, engine=None) -> dict:
+    """All figures as one JSON-ready dict; the closed-loop and whole-day units run on ``engine`` (EngineSettings)."""
     from lcmesh.llm.base import LlmBackendSettings, make_backend
     from lcmesh.llm.controller import make_control_backend
     from lcmesh.llm.explainer import short_backend_for
@@ -102,10 +103,10 @@ def run_bench_llm(cfg: BenchLlmConfig, on_stage: Callable[[str], None] | None = 
         result["explanations"] = _explanations(cfg, system, backend, say, short_backend_for(settings))
     if "loop" in sections:
         say("closed loop on the held-out days")
-        result["closed_loop"] = _closed_loop(cfg, system, control, say)
+        result["closed_loop"] = _closed_loop(cfg, system, say, engine)
     if "days" in sections:
         say("whole held-out days")
-        result["whole_days"] = _whole_days(cfg, system, control, say)
+        result["whole_days"] = _whole_days(cfg, system, say, engine)
     result["machine"]["load_avg_1m_at_end"] = os.getloadavg()[0]
     return result
 
@@ -247,43 +248,56 @@ def busiest_window(trace, steps: int) -> int:
     return int(np.argmax(window))
 
 
-def _loop_controller(name: str, system, backend, cfg: BenchLlmConfig):
-    from lcmesh.llm.controller import LlmController
-    from lcmesh.twin.controllers import make_controller
-
-    if name == "llm":
-        return LlmController(system, backend=backend, period_steps=cfg.period_steps)
-    return make_controller(name, system)
+def _llm_options(cfg: BenchLlmConfig, period: int) -> dict:
+    """The LLM controller as the bench runs it: its own runtime in the unit's process, the bench's adapter, threads."""
+    return {"period_steps": period, "adapter": cfg.control_adapter, "threads": cfg.control_threads}
 
 
-def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
-    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, load_day, run_day
+def _days(cfg: BenchLlmConfig):
+    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named
 
-    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()],
-                                                      TEST_DAYS + VALIDATION_DAYS)  # fmt: skip
+    return TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()],
+                                                     TEST_DAYS + VALIDATION_DAYS)  # fmt: skip
+
+
+def _closed_loop(cfg: BenchLlmConfig, system, say, engine=None) -> dict:
+    """The busiest ``hours`` of each day after a warm-up, every loop controller; the (controller, day) units on the
+    engine (lcmesh/bench/engine.py), the LLM's with its threads as CPUs."""
+    from lcmesh.bench.engine import cache_summary, run_units
+    from lcmesh.bench.suite import day_units, load_day
+
+    days = _days(cfg)
     steps = max(int(round(cfg.hours * 240)), 1)
-    rows: dict[str, dict] = {name: {"days": {}} for name in LOOP_CONTROLLERS}
-    windows = {}
-    for i, day in enumerate(days):
+    windows, spans = {}, {}
+    for day in days:
         full = load_day(day, system)
         start = busiest_window(full, steps)
         warm = min(WARMUP_STEPS, start)
-        trace = full.slice(start - warm, warm + steps)
-        windows[day.label] = {"start_h": start * full.step_s / 3600.0, "hours": steps * full.step_s / 3600.0,
+        spans[day.label] = (start, warm, min(steps, full.n_steps - start))
+        windows[day.label] = {"start_h": start * full.step_s / 3600.0,
+                              "hours": spans[day.label][2] * full.step_s / 3600.0,
                               "warmup_h": warm * full.step_s / 3600.0}  # fmt: skip
-        for name in LOOP_CONTROLLERS:
-            if "error" in rows[name]:
-                continue
-            say(f"closed loop {day.label} ({i + 1}/{len(days)}): {name}")
-            try:
-                controller = _loop_controller(name, system, backend, cfg)
-                r = run_day(system, trace, controller, score_from=warm)
-            except Exception as exc:  # a controller not trained yet is reported, not fatal
-                rows[name] = {"error": f"{type(exc).__name__}: {exc}"}
-                continue
-            if name == "llm":
-                r["llm_stats"] = controller.stats_snapshot()
-            rows[name]["days"][day.label] = r
+    rows: dict[str, dict] = {}
+    units = []
+    for name in LOOP_CONTROLLERS:
+        options = _llm_options(cfg, cfg.period_steps) if name == "llm" else None
+        try:
+            units += day_units(name, cfg.system, days, None, options=options, windows=spans,
+                               num_cpus=max(1, cfg.control_threads) if name == "llm" else None)  # fmt: skip
+            rows[name] = {"days": {}}
+        except Exception as exc:  # a controller not trained yet is reported, not fatal
+            rows[name] = {"error": f"{type(exc).__name__}: {exc}"}
+    outcomes = run_units(units, engine, lambda stage, done, total: say(f"closed loop: {stage} ({done}/{total})"))
+    labels = {(d.trace, d.scenario): d.label for d in days}
+    for o in outcomes:
+        row = rows[o.unit.kwargs["controller"]]
+        label = labels[(o.unit.kwargs["trace"], o.unit.kwargs["scenario"])]
+        if "error" in row:
+            continue
+        if o.error is not None:
+            rows[o.unit.kwargs["controller"]] = {"error": f"{label}: {o.error}"}
+            continue
+        row["days"][label] = o.result
     for name, row in rows.items():
         if "error" not in row and row["days"]:
             got = list(row["days"].values())
@@ -292,34 +306,33 @@ def _closed_loop(cfg: BenchLlmConfig, system, backend, say) -> dict:
                                      for k in ("supply_temp_setpoint_k", "dp_setpoint_pa", "lw_setpoint_k")}  # fmt: skip
             row["std_d_blade"] = float(np.std([d["d_blade_pct"] for d in got], ddof=1)) if len(got) > 1 else 0.0
             if name == "llm":
-                row["llm_stats"] = _sum_stats([d.pop("llm_stats") for d in got])
-    return {"days": windows, "period_steps": cfg.period_steps, "controllers": rows}
+                row["llm_stats"] = _sum_stats([d.pop("controller_stats") for d in got])
+    return {"days": windows, "period_steps": cfg.period_steps, "controllers": rows, "cache": cache_summary(outcomes)}
 
 
-def _whole_days(cfg: BenchLlmConfig, system, control, say) -> dict:
-    """Whole held-out days: the LLM (deciding every ``whole_day_period`` steps) beside its teacher, same guardrails."""
-    from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named, load_day, run_day
-    from lcmesh.llm.controller import LlmController
-    from lcmesh.twin.controllers import make_controller
+def _whole_days(cfg: BenchLlmConfig, system, say, engine=None) -> dict:
+    """Whole held-out days: the LLM (deciding every ``whole_day_period`` steps) beside its teacher, same guardrails;
+    every (controller, day) a unit on the engine."""
+    from lcmesh.bench.engine import cache_summary, run_units
+    from lcmesh.bench.suite import day_units
 
-    days = TEST_DAYS if not cfg.days else days_named([d.strip() for d in cfg.days.split(",") if d.strip()],
-                                                      TEST_DAYS + VALIDATION_DAYS)  # fmt: skip
-    rows: dict[str, dict] = {"ppo": {}, "llm": {}}
-    stats = []
-    for i, day in enumerate(days):
-        trace = load_day(day, system)
-        for name in ("ppo", "llm"):
-            say(f"whole day {day.label} ({i + 1}/{len(days)}): {name}")
-            if name == "llm":
-                controller = LlmController(system, backend=control, period_steps=cfg.whole_day_period)
-            else:
-                controller = make_controller(name, system)
-            rows[name][day.label] = run_day(system, trace, controller)
-            if name == "llm":
-                stats.append(controller.stats_snapshot())
+    days = _days(cfg)
+    units = day_units("ppo", cfg.system, days, None)
+    units += day_units("llm", cfg.system, days, None, options=_llm_options(cfg, cfg.whole_day_period),
+                       num_cpus=max(1, cfg.control_threads))  # fmt: skip
+    outcomes = run_units(units, engine, lambda stage, done, total: say(f"whole days: {stage} ({done}/{total})"))
+    failed = [f"{o.unit.label}: {o.error}" for o in outcomes if o.error is not None]
+    if failed:
+        raise RuntimeError("whole days failed: " + "; ".join(failed))
+    rows = {"ppo": {d.label: o.result for d, o in zip(days, outcomes[:len(days)])},
+            "llm": {d.label: o.result for d, o in zip(days, outcomes[len(days):])}}  # fmt: skip
+    stats = [r.pop("controller_stats") for r in rows["llm"].values()]
+    for r in rows["ppo"].values():
+        r.pop("controller_stats", None)
     mean = {name: float(np.mean([d["d_blade_pct"] for d in r.values()])) for name, r in rows.items()}
     return {"period_steps": cfg.whole_day_period, "days": rows, "mean_d_blade": mean,
-            "gap_points": mean["ppo"] - mean["llm"], "llm_stats": _sum_stats(stats)}  # fmt: skip
+            "gap_points": mean["ppo"] - mean["llm"], "llm_stats": _sum_stats(stats),
+            "cache": cache_summary(outcomes)}  # fmt: skip
 
 
 def _sum_stats(stats: list[dict]) -> dict:
@@ -459,6 +472,8 @@ def _render_loop(cl: dict) -> list[str]:
     if checks:
         lines += ["", "| issue 22 target (closed loop) | measured | met |", "|---|---|---|"]
         lines += [f"| {c['target']} | {c['measured']} | {'yes' if c['met'] else 'no'} |" for c in checks]
+    if cached := cache_line(cl.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     return lines
 
 
@@ -514,4 +529,6 @@ def _render_whole_days(wd: dict) -> list[str]:
                  f"for the teacher ({100 * (cooling['llm'] / cooling['ppo'] - 1):+.1f} %). A day took {wall_h:.2f} h "
                  f"of wall time for the LLM (one thread; on shared cores, so the decision times above are an upper bound)." + (f" Not run: {', '.join(missing)} ({len(labels)} of {len(TEST_DAYS)} "
                                                  f"test days measured)." if missing else ""))  # fmt: skip
+    if cached := cache_line(wd.get("cache", {})):
+        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
     return lines

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -234,12 +234,14 @@ def suite_plan(controllers: list[str], system_name: str, days: tuple[Day, ...], 
     return SuitePlan(list(controllers), system_name, tuple(days), hours, guardrails, facts, build_errors, units)
 
 
-def day_units(controller: str, system_name: str, days: Iterable[Day], hours: float, guardrails: bool = True,
-              policy: str | None = None, tag: str | None = None) -> list[Unit]:
-    """One unit per day of ``controller`` (with ``policy`` when given); it is built once here, for its version (code
-    and artifact files: the cache key) and so that one that cannot be built raises before anything runs."""
+def day_units(controller: str, system_name: str, days: Iterable[Day], hours: float | None, guardrails: bool = True,
+              options: dict | None = None, tag: str | None = None,
+              windows: dict[str, tuple[int, int, int]] | None = None, num_cpus: float | None = None) -> list[Unit]:  # fmt: skip
+    """One unit per day of ``controller`` (built with ``options``, JSON-able keywords); it is built once here, for its
+    version (code and artifact files: the cache key) and so that one that cannot be built raises before anything
+    runs. ``windows``: per day label, the (start, warm-up, scored) steps of a slice of the day (see `suite_day`)."""
     system = load_system(system_name)
-    built = make_controller(controller, system, **({"policy": policy} if policy else {}))
+    built = make_controller(controller, system, **(options or {}))
     version = controller_version(built)
     getattr(built, "close", lambda: None)()
     # a system file is named by its absolute path: a Ray worker's working directory need not be ours
@@ -247,9 +249,11 @@ def day_units(controller: str, system_name: str, days: Iterable[Day], hours: flo
     versions = (twin_version(), version, system.model_dump_json())
     return [Unit("lcmesh.bench.suite:suite_day",
                  {"system": system_ref, "trace": day.trace, "scenario": day.scenario, "hours": hours,
-                  "controller": controller, "guardrails": guardrails, "policy": policy},
-                 label=f"{system.name}: {tag or controller} on {day.label}", num_cpus=unit_cpus(controller),
-                 versions=versions) for day in days]  # fmt: skip
+                  "controller": controller, "guardrails": guardrails, "options": options or {},
+                  "window": (windows or {}).get(day.label)},
+                 label=f"{system.name}: {tag or controller} on {day.label}",
+                 num_cpus=num_cpus if num_cpus is not None else unit_cpus(controller), versions=versions)
+            for day in days]  # fmt: skip
 
 
 def unit_cpus(controller: str) -> float:
@@ -261,14 +265,23 @@ def unit_cpus(controller: str) -> float:
     return float(max(1, LlmControllerSettings().control_threads))
 
 
-def suite_day(system: str, trace: str, scenario: str, hours: float, controller: str, guardrails: bool,
-              policy: str | None = None) -> dict:
-    """One unit of the suite: ``controller`` (built fresh: no carry-over between days) on one day."""
+def suite_day(system: str, trace: str, scenario: str, hours: float | None, controller: str, guardrails: bool,
+              options: dict | None = None, window: Sequence[int] | None = None) -> dict:
+    """One unit of the benches: ``controller`` (built fresh with ``options``: no carry-over between days) on one day,
+    or with ``window`` = (start, warm-up, scored steps) on the scored steps from ``start``, after a warm-up by the
+    same controller. A controller that counts who decided (the LLM's) adds its counters as ``controller_stats``."""
     desc = load_system(system)
-    built = make_controller(controller, desc, **({"policy": policy} if policy else {}))
+    day = load_trace(trace, desc, scenario=scenario, hours=hours)
+    score_from = 0
+    if window is not None:
+        start, warm, steps = (int(v) for v in window)
+        day, score_from = day.slice(start - warm, warm + steps), warm
+    built = make_controller(controller, desc, **(options or {}))
     try:
-        return run_day(desc, load_trace(trace, desc, scenario=scenario, hours=hours), built,
-                       guardrails=MESH_GUARDRAILS if guardrails else None)  # fmt: skip
+        result = run_day(desc, day, built, score_from=score_from, guardrails=MESH_GUARDRAILS if guardrails else None)
+        if callable(getattr(built, "stats_snapshot", None)):
+            result["controller_stats"] = built.stats_snapshot()
+        return result
     finally:
         getattr(built, "close", lambda: None)()
 
@@ -608,6 +621,8 @@ def plot_days(r: dict, path: str | Path) -> Path:
     axes[2].set_ylim(bottom=min(hottest, default=20.0) - 3.0, top=max(max(hottest, default=40.0), 40.0) + 1.0)
     axes[2].axhline(40.0, color="k", lw=0.8, ls="--")
     axes[-1].set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
-    axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=8, ncols=min(len(working), 8), frameon=False)
+    if working:
+        axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=8, ncols=min(len(working), 8),
+                       frameon=False)  # fmt: skip
     fig.suptitle(f"{r['system']}: per controller and held-out day", fontsize=11)
     return save_figure(fig, path, dpi=100)

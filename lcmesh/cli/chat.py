@@ -8,7 +8,10 @@ from typing import Annotated, Optional
 
 import typer
 
-from lcmesh.cli.common import JsonOpt, bench_app, console, fail, progress_bar, write_bench
+from lcmesh.cli.common import (
+    AddressOpt, CacheOpt, EngineOpt, FreshOpt, JsonOpt, NoCacheOpt, bench_app, console, engine_settings, fail,
+    stage_progress, write_bench,
+)  # fmt: skip
 
 
 @bench_app.command("chat")
@@ -31,6 +34,11 @@ def bench_chat(
                                         "controller's count of who decided", min=0, max=600)] = 0.0,
     explainer: Annotated[Optional[str], typer.Option(help="--live: 'llm': the Control agent explains with the LLM "
                                                      "(its count of who wrote them is reported)")] = None,
+    engine: EngineOpt = "ray",
+    address: AddressOpt = None,
+    fresh: FreshOpt = False,
+    cache: CacheOpt = None,
+    no_cache: NoCacheOpt = False,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
     if explainer not in (None, "renderer", "llm"):
@@ -45,10 +53,11 @@ def bench_chat(
         return
     from lcmesh.bench import chat
     from lcmesh.bench.chat_site import ensure_site
+    from lcmesh.bench.engine import cache_summary, run_units
     from lcmesh.bench.machine import machine_info
     from lcmesh.llm.model_cache import models_dir
-    from lcmesh.mesh.agents.ui.planner import make_planner
 
+    settings = engine_settings(engine, address, fresh, cache, no_cache)
     if split not in ("test", "dev", "all"):
         fail(f"--split must be test, dev or all, not {split!r}")
     splits = ["dev", "test"] if split == "all" else [split]
@@ -56,31 +65,27 @@ def bench_chat(
     if not sets or any(q not in chat.QUESTION_SETS for q in sets):
         fail(f"--questions must be a comma list of {', '.join(chat.QUESTION_SETS)}, not {questions!r}")
     parts = [(qs, sp) for qs in sets for sp in splits if sp in chat.SET_SPLITS[qs]]  # b is all test, c all dev
-    with console.status("recording (or reusing) the bench site"):
-        site = ensure_site(models_dir().parent / "chat-sites", minutes=site_minutes)
-    sources, run_tool = chat.site_runner(site)
-    report = {"site": f"{sources.manifest.system}, {sources.manifest.controller}, {site_minutes:g} min, "
-                      f"{sources.manifest.scenario}",
-              "command": "lcmesh bench chat " + " ".join(sys.argv[3:]), "machine": machine_info(), "planners": {}}
     names = [p.strip() for p in planners.split(",") if p.strip()]
     unknown = [n for n in names if n not in ("llm", "openai", "rules", "oracle")]
     if unknown:
         fail(f"--planners: unknown {', '.join(unknown)} (known: llm, openai, rules, oracle)")
-    for name in names:
-        planner = None if name == "oracle" else make_planner(name)
-        report["planners"][name] = {}
-        for question_set, split_name in parts:
-            part = split_name if question_set == "a" else f"{question_set}-{split_name}"
-            questions = chat.load_questions(split_name, question_set)
-            engine = chat.bench_engine(sources, planner or chat.OraclePlanner(questions), run_tool)
-            if planner is None:  # the ceiling: the expected calls exactly, no second opinion from the rules
-                engine.second_opinion = lambda message, plan: plan
-            with progress_bar() as progress:
-                task = progress.add_task(f"{name} on {part}", total=len(questions))
-                rows = chat.run_split(questions, engine, run_tool,
-                                      progress=lambda k: progress.update(task, completed=k))  # fmt: skip
-            summary = chat.summarize(rows)
-            report["planners"][name][part] = summary
-            console.print(f"{name} {part}: plans {summary['plan_accuracy']:.1%}, answers {summary['correct']:.1%}, "
-                          f"wrong-but-grounded {summary['wrong_but_grounded']}, p99 {summary['latency_p99_s']:.2f} s")
+    with console.status("recording (or reusing) the bench site"):
+        site = ensure_site(models_dir().parent / "chat-sites", minutes=site_minutes)
+    sources, _ = chat.site_runner(site)
+    report = {"site": f"{sources.manifest.system}, {sources.manifest.controller}, {site_minutes:g} min, "
+                      f"{sources.manifest.scenario}",
+              "command": "lcmesh bench chat " + " ".join(sys.argv[3:]), "machine": machine_info(), "planners": {}}
+    # every (planner, part) is a unit on the engine (lcmesh/bench/engine.py); latency is each unit's own, one CPU each
+    units = chat.part_units(names, parts, site)
+    with stage_progress("planners on the question parts") as on_progress:
+        outcomes = run_units(units, settings, on_progress)
+    for o in outcomes:
+        name, part = o.unit.kwargs["planner"], chat.part_name(o.unit.kwargs["question_set"], o.unit.kwargs["split"])
+        if o.error is not None:
+            fail(f"{name} on {part} failed: {o.error}")
+        summary = report["planners"].setdefault(name, {})[part] = o.result
+        console.print(f"{name} {part}: plans {summary['plan_accuracy']:.1%}, answers {summary['correct']:.1%}, "
+                      f"wrong-but-grounded {summary['wrong_but_grounded']}, p99 {summary['latency_p99_s']:.2f} s"
+                      + (" (cached)" if o.cached else ""))  # fmt: skip
+    report["cache"] = cache_summary(outcomes)
     write_bench(json_out, markdown, "chat", report, render=chat.markdown)

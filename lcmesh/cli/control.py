@@ -114,16 +114,22 @@ def bench_control(
     quick: Annotated[bool, typer.Option(help="2 h of the day, no scaling study or rewards (smoke run)")] = False,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
     plots: Annotated[Path, typer.Option(help="folder for the radar and time-series plots")] = Path("docs/img"),
+    engine: EngineOpt = "ray",
+    address: AddressOpt = None,
+    fresh: FreshOpt = False,
+    cache: CacheOpt = None,
+    no_cache: NoCacheOpt = False,
 ) -> None:
     """Ablation (Table 3), scaling (Table 4), power-valve correlation (Table 5), trees (Tables 12-15)."""
     from lcmesh.bench.control import render_control, run_bench_control
 
-    with console.status("benchmarking the controllers on the Frontier day") as status:
-
-        def on_progress(stage: str, done: int, total: int) -> None:
-            status.update(f"setpoint tracking and action sweeps: {stage} ({done}/{total})")
-
-        result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress)
+    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    with stage_progress("the paper's tables on the Frontier day") as on_progress:
+        try:
+            result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress, engine=settings)
+        except RuntimeError as exc:
+            fail(str(exc))
+    say_cache(result)
     write_bench(json_out, markdown, "control", result, render=render_control)
 
 

@@ -7,7 +7,10 @@ from typing import Annotated, Optional
 
 import typer
 
-from lcmesh.cli.common import JsonOpt, bench_app, console, distill_app, fail, progress_bar, stage_bars, write_bench
+from lcmesh.cli.common import (
+    AddressOpt, CacheOpt, EngineOpt, FreshOpt, JsonOpt, NoCacheOpt, bench_app, console, distill_app, engine_settings,
+    fail, progress_bar, stage_bars, write_bench,
+)  # fmt: skip
 from lcmesh.cli.control import dataclass_options
 
 
@@ -70,10 +73,16 @@ def bench_llm(
     sections: Annotated[str, typer.Option(help="what to run: fidelity, control, explain, loop (busiest hour per "
                                           "day), days (whole days, hours each)")] = "fidelity,control,explain,loop",
     whole_day_period: Annotated[int, typer.Option(help="whole days: the LLM decides every N steps", min=1)] = 8,
+    engine: EngineOpt = "ray",
+    address: AddressOpt = None,
+    fresh: FreshOpt = False,
+    cache: CacheOpt = None,
+    no_cache: NoCacheOpt = False,
 ) -> None:
     """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
 
+    settings = engine_settings(engine, address, fresh, cache, no_cache)
     if days:
         from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named
 
@@ -92,7 +101,7 @@ def bench_llm(
                               sections=sections, whole_day_period=whole_day_period)
     with progress_bar() as progress:
         task = progress.add_task("bench llm", total=None)
-        result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg))
+        result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg), engine=settings)
     write_bench(json_out, markdown, "llm", result, render=render_llm)
 
 

@@ -105,9 +105,12 @@ class LlmController:
         decision_budget_s: float | None = None,
         hold: HoldBand | None = DEFAULT_HOLD,
         clock: Clock | None = None,
+        adapter: str | None = None,
+        threads: int | None = None,
     ):
         """``backend``: anything with ``decide(prompts, fields, deadline)`` and a ``clock`` (default: llama.cpp with
-        the packaged control adapter). ``decision_budget_s``: None (no deadline) outside the mesh."""
+        the control adapter ``adapter`` on ``threads`` threads, the settings' when None). ``decision_budget_s``: None
+        (no deadline) outside the mesh."""
         cfg = LlmControllerSettings()
         self.system = system
         self.base_period = period_steps if period_steps is not None else cfg.control_period_steps
@@ -117,8 +120,10 @@ class LlmController:
             raise ValueError(f"`decision_budget_s` must be > 0 or None, got {decision_budget_s}")
         self.period_steps = self.base_period
         self.decision_budget_s = decision_budget_s
-        self.backend = backend if backend is not None else make_control_backend(cfg.control_adapter,
-                                                                                cfg.control_threads)  # fmt: skip
+        self._owns_backend = backend is None
+        self.backend = backend if backend is not None else make_control_backend(
+            adapter if adapter is not None else cfg.control_adapter,
+            threads if threads is not None else cfg.control_threads)
         self.clock = clock or getattr(self.backend, "clock", time.monotonic)
         fb = fallback if fallback is not None else cfg.fallback
         self.fallback = make_fallback(fb, system) if isinstance(fb, str) else fb
@@ -146,6 +151,11 @@ class LlmController:
             "steps": 0, "steps_llm": 0,
         }  # fmt: skip
         self.last_answers: list[str] = []
+
+    def close(self) -> None:
+        """Free the runtime this controller loaded itself (one it was given stays its owner's)."""
+        if self._owns_backend and callable(getattr(self.backend, "close", None)):
+            self.backend.close()
 
     # --- pacing (the mesh) ----------------------------------------------------------------------------------
     def pace(self, step_wall_s: float) -> int:
