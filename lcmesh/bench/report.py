@@ -36,8 +36,13 @@ def render_twin(r: dict) -> str:
         f"| lcopt-5 cabinet env (Gymnasium), steps/s | {env['cabinet']['steps_per_s']:,.0f} | >= 5,000 (LC-Opt: ~50) |",
         f"| lcopt-5 tower env, steps/s | {env['tower']['steps_per_s']:,.0f} | |",
         f"| lcopt-5 parallel env (PettingZoo, 7 agents), steps/s | {env['parallel']['steps_per_s']:,.0f} | |",
-        f"| lcopt-5 closed-loop run (trace + static rule + FMU + KPIs + recording), steps/s | "
+        f"| lcopt-5 closed-loop run (trace + static rule + guardrails + FMU + KPIs + recording), steps/s | "
         f"{loop['steps_per_s']:,.0f} | |",
+    ]
+    if "bare_steps_per_s" in loop:
+        lines.append(f"| the same loop bare (no guardrails), steps/s; guarded slowdown | {loop['bare_steps_per_s']:,.0f}; "
+                     f"{loop['guard_slowdown']:.2f}x | <= 2x |")  # fmt: skip
+    lines += [
         f"| frontier-full ({day['blade_groups']:,} blade groups) 24 h day, wall s | {day['wall_s']:.2f} "
         f"({day['realtime_factor']:,.0f}x real time) | <= 20 s (>= 4,000x) |",
         f"| raw fmi2 + numpy buffers vs fmpy list API (lcopt-5 loop) | {cmp_['raw_fmi2_steps_per_s']:,.0f} vs "
