@@ -256,3 +256,46 @@ def bench_ablation(
         fail(str(exc))
     say_cache(result)
     write_bench(json_out, markdown, "ablation", result, render=render_ablation)
+
+
+@train_app.command("sweep")
+def train_sweep(
+    case: Annotated[int, typer.Option(help="the PPO ablation case (2-7)")] = 7,
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
+    grid: Annotated[Optional[list[str]], typer.Option(help="a PPO setting and its values, name=v1,v2 (repeatable; "
+                                                      "one value sets it for every run), e.g. reward=lcopt,energy")] = None,
+    out: Annotated[Path, typer.Option(help="the sweep's folder: one run folder per grid point and seed")] = Path(
+        "runs/ppo/sweep"
+    ),
+    json_out: JsonOpt = None,
+    engine: EngineOpt = "ray",
+    address: AddressOpt = None,
+    fresh: FreshOpt = False,
+    cache: CacheOpt = None,
+    no_cache: NoCacheOpt = False,
+) -> None:
+    """PPO seeds and setting grids, each run a unit on the engine (docs/bench.md): in parallel, cached, resumable."""
+    from lcmesh.distill.ppo_config import PpoConfig
+    from lcmesh.distill.sweep import parse_grid, run_sweep, sweep_configs
+
+    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    try:
+        seed_list = [int(s) for s in seeds.split(",") if s.strip()]
+        # every run's settings are checked (PpoConfig validates) before any starts
+        configs = sweep_configs(PpoConfig(case=case, out=str(out)), seed_list, parse_grid(grid or []))
+    except ValueError as exc:
+        fail(f"{exc}")
+    with stage_progress(f"{len(configs)} PPO runs") as on_progress:
+        outcomes = run_sweep(configs, settings, on_progress)
+    rows = []
+    for o in outcomes:
+        if o.error is not None:
+            console.print(f"[yellow]{o.unit.label}: failed[/yellow] ({o.error})")
+            rows.append({"run": o.unit.label, "error": o.error})
+            continue
+        best = o.result.get("best", {})
+        kpi = best.get("kpi", {})
+        console.print(f"{o.unit.label}: best at update {best.get('update')}, validation D_blade "
+                      f"{kpi.get('d_blade_pct', float('nan')):.2f} %" + (" (cached)" if o.cached else ""))  # fmt: skip
+        rows.append({"run": o.unit.label, "cached": o.cached, "commit": o.commit, "summary": o.result})
+    write_json(json_out or out / "sweep.json", {"runs": rows})
