@@ -342,7 +342,8 @@ def cache_line(summary: dict) -> str:
     if not summary or not summary.get("units"):
         return ""
     if not summary["cached"]:
-        return f"All {summary['units']} units computed at commit {summary['computed_commit'] or 'unknown'}."
+        n, commit = summary["units"], summary["computed_commit"] or "unknown"
+        return f"{'All ' if n > 1 else ''}{n} unit{'s' if n > 1 else ''} computed at commit {commit}."
     commits = ", ".join(f"{c} ({n})" for c, n in sorted(summary["cached_commits"].items()))
     return (f"{summary['cached']} of {summary['units']} units from the result cache (computed at commit {commits}); "
             f"{summary['computed']} computed at commit {summary['computed_commit'] or 'unknown'}.")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -182,6 +183,9 @@ def test_the_cli_writes_json_markdown_and_plot_and_answers_bad_input(tmp_path):
     written = json.loads(out.read_text())
     assert written["controllers"]["static"]["error"] is None and written["plot"].endswith("suite_pareto.png")
     assert "<!-- bench:suite:start -->" in md.read_text() and "](" + written["plot"] + ")" in md.read_text()
+    assert written["plot_days"].endswith("suite_days.png") and Path(written["plot_days"]).stat().st_size > 10_000
+    assert "](" + written["plot_days"] + ")" in md.read_text()
+    assert "Units (lcmesh/bench/engine.py): 1 unit computed at commit" in md.read_text()
     bad_day = runner.invoke(app, ["bench", "suite", "--controllers", "static", "--days", "mild-101"])
     assert bad_day.exit_code == 2 and "did you mean 'mild-1019'" in bad_day.output
     no_controller = runner.invoke(app, ["bench", "suite", "--controllers", ","])
