@@ -57,6 +57,7 @@ class Unit:
     label: str
     num_cpus: float = 1.0
     versions: tuple[str, ...] = ()  # digests of what the result depends on beyond fn and kwargs (code, artifacts)
+    cost: float = 1.0  # a guess of its run time relative to its siblings', for the order (not part of the key)
 
     @property
     def key(self) -> str:
@@ -188,6 +189,12 @@ class ResultCache:
                           datetime.now(timezone.utc).isoformat(timespec="seconds"), seconds))  # fmt: skip
         self._db.commit()
 
+    def last_seconds(self, labels: Iterable[str]) -> dict[str, float]:
+        """The seconds the latest computed unit of each label took (another key: an older code or artifact)."""
+        rows = self._db.execute("SELECT label, seconds FROM units ORDER BY computed_at").fetchall()
+        wanted = set(labels)
+        return {label: float(seconds) for label, seconds in rows if label in wanted}
+
     def __len__(self) -> int:
         return int(self._db.execute("SELECT COUNT(*) FROM units").fetchone()[0])
 
@@ -257,12 +264,23 @@ def run_units(units: Sequence[Unit], settings: EngineSettings | None = None,
                 progress(units[i].label if error is None else f"{units[i].label} failed", done, total)
 
         if todo:
+            if settings.engine != "serial":
+                history = cache.last_seconds(units[i].label for i in todo) if cache is not None else {}
+                todo = longest_first(todo, units, history)
             runner = _run_serial if settings.engine == "serial" else _run_ray
             runner([units[i] for i in todo], settings, lambda k, *rest: finish(todo[k], *rest))
     finally:
         if cache is not None:
             cache.close()
     return [o for o in outcomes if o is not None]
+
+
+def longest_first(todo: list[int], units: Sequence[Unit], seconds: dict[str, float]) -> list[int]:
+    """The units to run, those expected to take longest first, so that no long unit starts last and leaves the other
+    CPUs idle at the end: by their labels' last times in the cache when it knows them all, else by their cost guess."""
+    if all(units[i].label in seconds for i in todo):
+        return sorted(todo, key=lambda i: -seconds[units[i].label])  # stable: ties keep their order
+    return sorted(todo, key=lambda i: -units[i].cost)
 
 
 def _run_serial(units: Sequence[Unit], settings: EngineSettings, finish: Callable) -> None:

@@ -55,7 +55,7 @@ from lcmesh.bench.engine import (
 )  # fmt: skip
 from lcmesh.bench.machine import machine_info
 from lcmesh.distill.tree_config import TreeDistillConfig
-from lcmesh.twin.controllers import Controller, make_controller
+from lcmesh.twin.controllers import NEEDS_PLANT, Controller, make_controller
 from lcmesh.twin.controllers.guarded import MESH_GUARDRAILS
 from lcmesh.twin.kpi import cooling_energies_kwh
 from lcmesh.twin.plant import Plant
@@ -252,7 +252,8 @@ def day_units(controller: str, system_name: str, days: Iterable[Day], hours: flo
                   "controller": controller, "guardrails": guardrails, "options": options or {},
                   "window": (windows or {}).get(day.label)},
                  label=f"{system.name}: {tag or controller} on {day.label}",
-                 num_cpus=num_cpus if num_cpus is not None else unit_cpus(controller), versions=versions)
+                 num_cpus=num_cpus if num_cpus is not None else unit_cpus(controller), versions=versions,
+                 cost=10.0 if controller in NEEDS_PLANT else 1.0)  # one that simulates the plant itself: the longest
             for day in days]  # fmt: skip
 
 

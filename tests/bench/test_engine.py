@@ -128,3 +128,15 @@ def test_the_cli_refuses_bad_engine_options(tmp_path):
     assert mixed.exit_code == 2 and "--address" in mixed.output
     folder = runner.invoke(app, ["bench", "suite", "--controllers", "static", "--cache", str(tmp_path)])
     assert folder.exit_code == 2 and "SQLite file" in folder.output
+
+
+def test_the_longest_units_go_first(tmp_path):
+    from lcmesh.bench.engine import longest_first
+
+    units = [Unit("json:dumps", {"obj": i}, label=f"u{i}", cost=c) for i, c in enumerate((1.0, 10.0, 1.0, 5.0))]
+    assert longest_first([0, 1, 2, 3], units, {}) == [1, 3, 0, 2]  # no history: the cost guesses
+    history = {"u0": 9.0, "u1": 0.5, "u2": 3.0, "u3": 1.0}
+    assert longest_first([0, 1, 2, 3], units, history) == [0, 2, 3, 1]  # the cache's times of the same labels
+    cache = ResultCache(tmp_path / "units.sqlite")
+    cache.put(units[2], "r", "abc", 3.0)
+    assert cache.last_seconds(["u2", "u9"]) == {"u2": 3.0}
