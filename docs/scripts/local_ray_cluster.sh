@@ -7,6 +7,8 @@
 #   lcmesh bench suite --address 127.0.0.1:6390 ...
 #   docs/scripts/local_ray_cluster.sh stop
 set -euo pipefail
+# token authentication, as ray.init() uses it: every node and client reads the token in ~/.ray/auth_token
+export RAY_AUTH_MODE="${RAY_AUTH_MODE:-token}"
 RAY="${RAY:-$(dirname "$(command -v lcmesh || echo .venv/bin/lcmesh)")/ray}"
 [ -x "$RAY" ] || RAY=ray
 case "${1:-}" in
@@ -19,7 +21,12 @@ case "${1:-}" in
     for _ in $(seq 2 "$nodes"); do
       "$RAY" start --address="127.0.0.1:$port" --node-ip-address=127.0.0.1 --num-cpus=1 --disable-usage-stats > /dev/null
     done
-    "$RAY" status --address="127.0.0.1:$port" | sed -n '/Active:/,/Pending:/p'
+    for _ in $(seq 30); do  # the workers register with the head in a few seconds
+      active=$("$RAY" status --address="127.0.0.1:$port" 2>/dev/null | sed -n '/Active:/,/Pending:/p' | grep -c node_ || true)
+      [ "$active" -ge "$nodes" ] && break
+      sleep 1
+    done
+    echo "$active of $nodes nodes active"
     echo "cluster of $nodes nodes at 127.0.0.1:$port (stop: $0 stop)"
     ;;
   stop)

@@ -33,6 +33,7 @@ import json
 import os
 import sqlite3
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -154,9 +155,26 @@ def resolve(spec: str) -> Callable:
     return getattr(importlib.import_module(module), name)
 
 
-def call(spec: str, kwargs: dict) -> Any:
-    """Run one unit (on a Ray worker or here)."""
-    return resolve(spec)(**kwargs)
+def call(spec: str, kwargs: dict, threads: int = 1) -> Any:
+    """Run one unit (on a Ray worker or here) with ``threads`` math threads (torch's, OpenMP's): the unit's CPUs.
+
+    Serially as on Ray, so the floats match: a PPO day run with torch's default of one thread per core sums its
+    matmuls in another order than with one, and its figures moved in the ninth digit between the two engines."""
+    previous = os.environ.get("OMP_NUM_THREADS")
+    os.environ["OMP_NUM_THREADS"] = str(threads)  # a torch imported by the unit reads it
+    torch = sys.modules.get("torch")
+    before = torch.get_num_threads() if torch is not None else None
+    if torch is not None:
+        torch.set_num_threads(threads)
+    try:
+        return resolve(spec)(**kwargs)
+    finally:
+        if previous is None:
+            os.environ.pop("OMP_NUM_THREADS", None)
+        else:
+            os.environ["OMP_NUM_THREADS"] = previous
+        if before is not None:
+            torch.set_num_threads(before)
 
 
 # --- the cache ----------------------------------------------------------------------------------------------------
@@ -287,15 +305,19 @@ def _run_serial(units: Sequence[Unit], settings: EngineSettings, finish: Callabl
     for k, unit in enumerate(units):
         t0 = time.perf_counter()
         try:
-            result, error = call(unit.fn, unit.kwargs), None
+            result, error = call(unit.fn, unit.kwargs, _threads(unit)), None
         except Exception as exc:  # noqa: BLE001 - a failed unit is a result of the benchmark
             result, error = None, f"{type(exc).__name__}: {exc}"
         finish(k, result, error, time.perf_counter() - t0)
 
 
-def _timed_call(spec: str, kwargs: dict) -> tuple[Any, float]:
+def _threads(unit: Unit) -> int:
+    return max(1, int(unit.num_cpus))
+
+
+def _timed_call(spec: str, kwargs: dict, threads: int) -> tuple[Any, float]:
     t0 = time.perf_counter()
-    result = call(spec, kwargs)
+    result = call(spec, kwargs, threads)
     return json.loads(json.dumps(result, default=_json_default)), time.perf_counter() - t0
 
 
@@ -305,7 +327,7 @@ def _run_ray(units: Sequence[Unit], settings: EngineSettings, finish: Callable) 
     started = _ray_start(settings)
     try:
         remote = ray.remote(_timed_call)
-        pending = {remote.options(num_cpus=u.num_cpus, max_retries=0).remote(u.fn, u.kwargs): k
+        pending = {remote.options(num_cpus=u.num_cpus, max_retries=0).remote(u.fn, u.kwargs, _threads(u)): k
                    for k, u in enumerate(units)}  # fmt: skip
         try:
             while pending:
