@@ -10,8 +10,10 @@ folder the adapters are trained on is this GGUF de-quantized.
 - ``chat``: greedy completions of ChatML conversations (SmolLM2's template, written out here so the
   runtime needs no tokenizer from transformers), optionally under a GBNF grammar or a JSON schema
   (llama.cpp's own grammar sampler), within a time budget on the backend's clock.
-- ``decide``: the controller's field answers (``lcmesh.llm.choice``), one grammar-constrained digit
-  per forward pass, the fixed prompt head's KV cache kept between cabinets.
+- ``decide``: the controller's field answers (``lcmesh.llm.choice``), grammar-constrained digit by digit:
+  by default a decision's prompts decoded together (``lcmesh.llm.batch_decode``: a round of digits for the
+  whole plant in a few passes, the prompt heads' KV cached between decisions), else one prompt after another,
+  one pass per decided digit, the fixed prompt head's KV cache kept between cabinets.
 
 One ``Llama`` context serves one thread at a time (a lock); a process that needs two models (the
 controller's adapter and the planner's) loads two backends.
@@ -29,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.llm.base import Conversation, Generation, LlmBackendSettings
+from lcmesh.llm.batch_decode import BatchDecoder
 from lcmesh.llm.budget import MIN_TOKENS, PROBE_TOKENS, Clock, PassCost
 from lcmesh.llm.choice import Choice, ChoiceDecoder, _common_prefix
 from lcmesh.llm.control_format import Field
@@ -91,10 +94,12 @@ class LlamaCppBackend:
 
     def __init__(self, gguf: Path | None = None, *, lora: Path | None = None, threads: int = 0,
                  clock: Clock = time.monotonic, n_ctx: int = N_CTX, adapter_id: str = "base",
-                 calibrate: bool = True):  # fmt: skip
+                 calibrate: bool = True, batched: bool = True):  # fmt: skip
         """``calibrate``: time a pass at load for the first pass-cost estimate (after a short warm-up pass, which
         pays the first touch of the weights: a cold first pass here took 12 s where a warm one takes 0.7 s, and as
-        the first estimate it refused every later call for its 3 s budget)."""
+        the first estimate it refused every later call for its 3 s budget). ``batched``: ``decide`` answers a
+        decision's prompts together (the sequential answers in fewer passes, see ``lcmesh.llm.batch_decode``)
+        unless told otherwise."""
         try:
             from llama_cpp import Llama
         except ImportError as exc:  # pragma: no cover - make setup installs it
@@ -114,9 +119,12 @@ class LlamaCppBackend:
         self.model_id = f"{self.gguf.stem}+{adapter_id}@llama.cpp"
         self.scorer = LlamaScorer(self.llm)
         self.decoder = ChoiceDecoder(self.scorer)
+        self.batched = batched
+        self.batch = BatchDecoder(self.llm, self.decoder, threads)
         self.pass_cost = PassCost()
         self.last_forward_passes = 0
         self._choice_s: dict[int, float] = {}  # seconds of the latest answer, per answer size (fields)
+        self._batch_s: dict[tuple[int, ...], float] = {}  # seconds of the latest batch, per decision shape
         self._lock = threading.Lock()
         if calibrate:
             with self._lock:
@@ -139,7 +147,7 @@ class LlamaCppBackend:
         import copy
 
         view = copy.copy(self)
-        view.clock, view.pass_cost, view._choice_s = clock, PassCost(), {}
+        view.clock, view.pass_cost, view._choice_s, view._batch_s = clock, PassCost(), {}, {}
         return view
 
     def calibrate(self) -> float:
@@ -163,24 +171,50 @@ class LlamaCppBackend:
         return seconds
 
     def close(self) -> None:
+        self.batch.close()  # its context uses the Llama's model and adapter
         llm, self.llm = self.llm, None
         if llm is not None:
             llm.close()
 
     # --- the controller's answers ---------------------------------------------------------------------------
     def decide(self, prompts: Sequence[tuple[str, str]], fields: Sequence[Sequence[Field]],
-               deadline: float | None = None) -> list[Choice | None]:  # fmt: skip
-        """Field answers for (head, rest) prompts; None for those not started before ``deadline`` (clock time)."""
-        out: list[Choice | None] = []
+               deadline: float | None = None, *, batched: bool | None = None) -> list[Choice | None]:  # fmt: skip
+        """Field answers for (head, rest) prompts; None for those not started before ``deadline`` (clock time).
+
+        Batched (the default: ``self.batched``) when the batch is expected to end by the deadline: a batch answers
+        all or nothing, so under a deadline it needs an estimate (the latest batch of this shape, else the sum of
+        the latest sequential answers, which a batch only shortens); otherwise one prompt after another, each
+        started only when expected to end in time. ``last_forward_passes``: the passes of the whole decision."""
+        shape = tuple(len(fs) for fs in fields)  # an answer's cost goes with its fields: a cabinet's, a tower's
         with self._lock:
-            for (head, rest), fs in zip(prompts, fields):
-                kind = len(fs)  # an answer's cost goes with its fields: a cabinet's, a tower's
-                if deadline is not None and self.clock() + self._choice_s.get(kind, 0.0) > deadline:
-                    out.append(None)  # expected to end after the deadline: not started
-                    continue
-                t0 = self.clock()
-                out.append(self.decoder.decode(self.decoder.prompt_ids(head, rest), fs))
-                self._choice_s[kind] = max(self.clock() - t0, 1e-6)
+            if (self.batched if batched is None else batched) and self.batch.fits(prompts):
+                expect = self._batch_s.get(shape)
+                if expect is None and all(kind in self._choice_s for kind in shape):
+                    expect = sum(self._choice_s[kind] for kind in shape)
+                if deadline is None or (expect is not None and self.clock() + expect <= deadline):
+                    t0 = self.clock()
+                    out: list[Choice | None] = list(self.batch.decode(prompts, fields))
+                    self._batch_s[shape] = max(self.clock() - t0, 1e-6)
+                    self.last_forward_passes = self.batch.passes
+                    return out
+            return self._decide_sequential(prompts, fields, deadline)
+
+    def _decide_sequential(self, prompts: Sequence[tuple[str, str]], fields: Sequence[Sequence[Field]],
+                           deadline: float | None) -> list[Choice | None]:  # fmt: skip
+        """One prompt after another on the ``Llama`` context (the head's cache kept), each within the deadline."""
+        out: list[Choice | None] = []
+        passes = 0
+        for (head, rest), fs in zip(prompts, fields):
+            kind = len(fs)
+            if deadline is not None and self.clock() + self._choice_s.get(kind, 0.0) > deadline:
+                out.append(None)  # expected to end after the deadline: not started
+                continue
+            t0 = self.clock()
+            choice = self.decoder.decode(self.decoder.prompt_ids(head, rest), fs)
+            self._choice_s[kind] = max(self.clock() - t0, 1e-6)
+            out.append(choice)
+            passes += choice.passes
+        self.last_forward_passes = passes
         return out
 
     # --- chat -------------------------------------------------------------------------------------------------
