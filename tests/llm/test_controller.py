@@ -99,8 +99,10 @@ def test_pace_sets_the_period_from_the_decision_latency_and_the_wall_step(lcopt5
     ctl = LlmController(lcopt5, backend=DeadRuntime(), fallback="g36", period_steps=2, clock=lambda: 0.0)
     assert ctl.pace(0.25) == 2 and ctl.decision_budget_s == pytest.approx(0.4)  # nothing measured: the base period
     ctl.stats["decisions"], ctl.stats["latency_s_total"], ctl.stats["latency_s_last"] = 4, 8.0, 2.2
-    assert ctl.pace(0.25) == 11  # 2.2 s at most 80 % of k * 0.25 s
-    assert ctl.decision_budget_s == pytest.approx(11 * 0.25 * 0.8)
+    assert ctl.pace(0.25) == 14  # 2.2 s with the 1.2 margin at most 80 % of k * 0.25 s
+    assert ctl.decision_budget_s == pytest.approx(14 * 0.25 * 0.8)
+    ctl._recent.extend([1.0, 3.0, 1.0])  # the slowest recent decision counts, not only the latest and the mean
+    assert ctl.pace(0.25) == 18
     assert ctl.pace(15.0) == 2  # at 1x the configured period holds
     with pytest.raises(ValueError, match="step_wall_s"):
         ctl.pace(0.0)
