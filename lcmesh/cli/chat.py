@@ -8,13 +8,11 @@ from typing import Annotated, Optional
 
 import typer
 
-from lcmesh.cli.common import (
-    AddressOpt, CacheOpt, EngineOpt, FreshOpt, JsonOpt, NoCacheOpt, bench_app, console, engine_settings, fail,
-    stage_progress, write_bench,
-)  # fmt: skip
+from lcmesh.cli.common import JsonOpt, bench_app, console, engine_options, fail, stage_progress, write_bench
 
 
 @bench_app.command("chat")
+@engine_options
 def bench_chat(
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
@@ -34,11 +32,7 @@ def bench_chat(
                                         "controller's count of who decided", min=0, max=600)] = 0.0,
     explainer: Annotated[Optional[str], typer.Option(help="--live: 'llm': the Control agent explains with the LLM "
                                                      "(its count of who wrote them is reported)")] = None,
-    engine: EngineOpt = "ray",
-    address: AddressOpt = None,
-    fresh: FreshOpt = False,
-    cache: CacheOpt = None,
-    no_cache: NoCacheOpt = False,
+    engine=None,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
     if explainer not in (None, "renderer", "llm"):
@@ -57,7 +51,7 @@ def bench_chat(
     from lcmesh.bench.machine import machine_info
     from lcmesh.llm.model_cache import models_dir
 
-    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    settings = engine  # EngineSettings, from @engine_options
     if split not in ("test", "dev", "all"):
         fail(f"--split must be test, dev or all, not {split!r}")
     splits = ["dev", "test"] if split == "all" else [split]

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
+import typing
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -32,14 +35,6 @@ ScenarioOpt = Annotated[
                       "lcopt (LC-Opt's +15 K and 25:1 branch skew); docs/traces.md")
 ]
 JsonOpt = Annotated[Optional[Path], typer.Option("--json", help="write the result as JSON here")]
-EngineOpt = Annotated[str, typer.Option(help="ray (a local instance unless --address) or serial (one unit after "
-                                        "another, here)")]
-AddressOpt = Annotated[Optional[str], typer.Option(help="a Ray cluster to run the units on (default: RAY_ADDRESS, "
-                                                   "else a local instance sized to this machine)")]
-FreshOpt = Annotated[bool, typer.Option(help="recompute every unit, ignoring (and then overwriting) the result cache")]
-CacheOpt = Annotated[Optional[Path], typer.Option(help="the result cache, a SQLite file (default: "
-                                                  "$LCMESH_BENCH_CACHE or runs/cache/units.sqlite)")]
-NoCacheOpt = Annotated[bool, typer.Option(help="neither read nor write the result cache")]
 
 
 def fail(message: str) -> None:
@@ -56,8 +51,39 @@ def load_system_or_fail(name: str):
         fail(str(exc))
 
 
-def engine_settings(engine: str, address: str | None, fresh: bool, cache: Path | None, no_cache: bool = False):
-    """The benches' engine options as EngineSettings (lcmesh/bench/engine.py); a clear error for a bad one."""
+_ENGINE_OPTIONS = {
+    "engine_kind": (str, "ray", typer.Option("--engine", help="ray (a local instance unless --address) or serial "
+                                             "(one unit after another, here)")),
+    "address": (Optional[str], None, typer.Option(help="a Ray cluster to run the units on (default: RAY_ADDRESS, "
+                                                  "else a local instance sized to this machine)")),
+    "fresh": (bool, False, typer.Option("--fresh", help="recompute every unit, ignoring (and then overwriting) the result cache")),
+    "cache": (Optional[Path], None, typer.Option(help="the result cache, a SQLite file (default: $LCMESH_BENCH_CACHE "
+                                                 "or runs/cache/units.sqlite)")),
+    "no_cache": (bool, False, typer.Option("--no-cache", help="neither read nor write the result cache")),
+}
+
+
+def engine_options(command: Callable) -> Callable:
+    """A bench command with the engine's options (docs/bench.md): --engine, --address, --fresh, --cache, --no-cache,
+    given to it as ``engine`` (EngineSettings), one clear error for a bad one."""
+    signature = inspect.signature(command)
+    hints = typing.get_type_hints(command, include_extras=True)  # the command's own names, resolved in its module
+    params = [p.replace(annotation=hints.get(p.name, p.annotation)) for p in signature.parameters.values()
+              if p.name != "engine"]  # fmt: skip
+    params += [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
+                                 annotation=Annotated[kind, option])
+               for name, (kind, default, option) in _ENGINE_OPTIONS.items()]  # fmt: skip
+
+    @functools.wraps(command)
+    def run(*args, engine_kind: str, address: str | None, fresh: bool, cache: Path | None, no_cache: bool, **kwargs):
+        return command(*args, engine=_engine_settings(engine_kind, address, fresh, cache, no_cache), **kwargs)
+
+    run.__signature__ = signature.replace(parameters=params, return_annotation=None)  # type: ignore[attr-defined]
+    run.__annotations__ = {p.name: p.annotation for p in params}
+    return run
+
+
+def _engine_settings(engine: str, address: str | None, fresh: bool, cache: Path | None, no_cache: bool):
     from lcmesh.bench.engine import EngineSettings
 
     try:

@@ -11,8 +11,8 @@ from typing import Annotated, Any, Callable, Optional
 import typer
 
 from lcmesh.cli.common import (
-    AddressOpt, CacheOpt, EngineOpt, FreshOpt, JsonOpt, NoCacheOpt, bench_app, console, distill_app, engine_settings,
-    fail, progress_bar, say_cache, stage_progress, train_app, write_bench, write_json,
+    JsonOpt, bench_app, console, distill_app, engine_options, fail, progress_bar, say_cache, stage_progress, train_app,
+    write_bench, write_json,
 )  # fmt: skip
 
 
@@ -109,21 +109,18 @@ _register()
 
 
 @bench_app.command("control")
+@engine_options
 def bench_control(
     json_out: JsonOpt = None,
     quick: Annotated[bool, typer.Option(help="2 h of the day, no scaling study or rewards (smoke run)")] = False,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
     plots: Annotated[Path, typer.Option(help="folder for the radar and time-series plots")] = Path("docs/img"),
-    engine: EngineOpt = "ray",
-    address: AddressOpt = None,
-    fresh: FreshOpt = False,
-    cache: CacheOpt = None,
-    no_cache: NoCacheOpt = False,
+    engine=None,
 ) -> None:
     """Ablation (Table 3), scaling (Table 4), power-valve correlation (Table 5), trees (Tables 12-15)."""
     from lcmesh.bench.control import render_control, run_bench_control
 
-    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    settings = engine  # EngineSettings, from @engine_options
     with stage_progress("the paper's tables on the Frontier day") as on_progress:
         try:
             result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress, engine=settings)
@@ -149,6 +146,7 @@ def bench_actions(
 
 
 @bench_app.command("suite")
+@engine_options
 def bench_suite(
     controllers: Annotated[str, typer.Option(help="comma-separated controller names (registry or 'package.module:Class')")] = (
         "static,g36,rule,lookahead,ppo,tree,readable"
@@ -167,11 +165,7 @@ def bench_suite(
                                              "guardrails, as the mesh applies it (off: the paper's setting)")] = True,
     hru: Annotated[bool, typer.Option(help="each controller without and with the heat-recovery unit (lcopt-5 and "
                                       "lcopt-5-hru) instead of the regret table")] = False,
-    engine: EngineOpt = "ray",
-    address: AddressOpt = None,
-    fresh: FreshOpt = False,
-    cache: CacheOpt = None,
-    no_cache: NoCacheOpt = False,
+    engine=None,
 ) -> None:
     """Every controller on the held-out days (lcmesh/bench/suite.py): mean ± std, per-day figures, regret (issue 13)."""
     from lcmesh.bench.suite import (
@@ -180,7 +174,7 @@ def bench_suite(
     )  # fmt: skip
     from lcmesh.cli.common import load_system_or_fail
 
-    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    settings = engine  # EngineSettings, from @engine_options
     names = [n.strip() for n in controllers.split(",") if n.strip()]
     if not names:
         fail(f"`--controllers` must name at least one controller, e.g. static,g36; got {controllers!r}")
@@ -222,6 +216,7 @@ def bench_suite(
 
 
 @bench_app.command("ablation")
+@engine_options
 def bench_ablation(
     folder: Annotated[Path, typer.Option(help="folder of case{C}-seed{S}.json policies")] = Path(
         "lcmesh/artifacts/ppo/frontier"
@@ -233,11 +228,7 @@ def bench_ablation(
     days: Annotated[Optional[str], typer.Option(help="comma-separated test-day labels (default: all)")] = None,
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update this BENCHMARKS.md section")] = None,
-    engine: EngineOpt = "ray",
-    address: AddressOpt = None,
-    fresh: FreshOpt = False,
-    cache: CacheOpt = None,
-    no_cache: NoCacheOpt = False,
+    engine=None,
 ) -> None:
     """Every seed of every PPO case on the held-out days, mean ± std over seeds (lcmesh/bench/ablation.py, issue 13)."""
     from lcmesh.bench.ablation import render_ablation, run_ablation
@@ -245,7 +236,7 @@ def bench_ablation(
     from lcmesh.cli.common import load_system_or_fail
 
     load_system_or_fail(system)
-    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    settings = engine  # EngineSettings, from @engine_options
     if not folder.is_dir():
         fail(f"`--folder` must be a folder of case{{C}}-seed{{S}}.json policies, got {folder}")
     try:
@@ -259,6 +250,7 @@ def bench_ablation(
 
 
 @train_app.command("sweep")
+@engine_options
 def train_sweep(
     case: Annotated[int, typer.Option(help="the PPO ablation case (2-7)")] = 7,
     seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
@@ -268,17 +260,13 @@ def train_sweep(
         "runs/ppo/sweep"
     ),
     json_out: JsonOpt = None,
-    engine: EngineOpt = "ray",
-    address: AddressOpt = None,
-    fresh: FreshOpt = False,
-    cache: CacheOpt = None,
-    no_cache: NoCacheOpt = False,
+    engine=None,
 ) -> None:
     """PPO seeds and setting grids, each run a unit on the engine (docs/bench.md): in parallel, cached, resumable."""
     from lcmesh.distill.ppo_config import PpoConfig
     from lcmesh.distill.sweep import parse_grid, run_sweep, sweep_configs
 
-    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    settings = engine  # EngineSettings, from @engine_options
     try:
         seed_list = [int(s) for s in seeds.split(",") if s.strip()]
         # every run's settings are checked (PpoConfig validates) before any starts

@@ -8,8 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from lcmesh.cli.common import (
-    AddressOpt, CacheOpt, EngineOpt, FreshOpt, JsonOpt, NoCacheOpt, bench_app, console, distill_app, engine_settings,
-    fail, progress_bar, stage_bars, write_bench,
+    JsonOpt, bench_app, console, distill_app, engine_options, fail, progress_bar, stage_bars, write_bench,
 )  # fmt: skip
 from lcmesh.cli.control import dataclass_options
 
@@ -59,6 +58,7 @@ _register()
 
 
 @bench_app.command("llm")
+@engine_options
 def bench_llm(
     json_out: JsonOpt = None,
     markdown: Annotated[Optional[Path], typer.Option(help="update the llm section of this BENCHMARKS.md")] = None,
@@ -73,16 +73,12 @@ def bench_llm(
     sections: Annotated[str, typer.Option(help="what to run: fidelity, control, explain, loop (busiest hour per "
                                           "day), days (whole days, hours each)")] = "fidelity,control,explain,loop",
     whole_day_period: Annotated[int, typer.Option(help="whole days: the LLM decides every N steps", min=1)] = 8,
-    engine: EngineOpt = "ray",
-    address: AddressOpt = None,
-    fresh: FreshOpt = False,
-    cache: CacheOpt = None,
-    no_cache: NoCacheOpt = False,
+    engine=None,
 ) -> None:
     """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
 
-    settings = engine_settings(engine, address, fresh, cache, no_cache)
+    settings = engine  # EngineSettings, from @engine_options
     if days:
         from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named
 
