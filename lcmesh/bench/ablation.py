@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lcmesh.bench.engine import EngineSettings, cache_line, cache_summary, run_units
+from lcmesh.bench.engine import EngineSettings, cache_lines, cache_summary, run_units
 from lcmesh.bench.machine import machine_info
 from lcmesh.bench.suite import GUARDRAILS_ON, TEST_DAYS, Day, day_units
 
@@ -174,8 +174,7 @@ def render_ablation(r: dict) -> str:
         lines.append(f"| {case} | " + " | ".join(cells) + " |")
     lines += ["", f"Machine: {m.get('cpu', '?')}, {m.get('logical_cpus', '?')} logical CPUs; commit {m.get('commit', '?')}; "
               f"{m.get('date', '?')}."]  # fmt: skip
-    if cached := cache_line(r.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(r.get("cache", {}))
     return "\n".join(lines) + "\n"
 
 

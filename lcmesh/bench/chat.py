@@ -304,10 +304,9 @@ def markdown(report: dict[str, Any]) -> str:
               f"{m.get('commit', '?')}, {m.get('date', '?')}."]
     for part, run in report.get("parts_measured", {}).items():  # "Parts test and b-test": when, if not the above
         lines.append(f"{part}: {run}.")
-    from lcmesh.bench.engine import cache_line
+    from lcmesh.bench.engine import cache_lines
 
-    if cached := cache_line(report.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(report.get("cache", {}))
     return "\n".join(lines)
 
 

@@ -16,8 +16,9 @@ import numpy as np
 
 from lcmesh.bench.actions import Progress, render_actions, run_bench_actions
 from lcmesh.bench.engine import (
-    EngineSettings, Unit, cache_line, cache_summary, controller_version, run_units, tree_digest, twin_version,
+    EngineSettings, Unit, cache_lines, cache_summary, run_units, tree_digest, twin_version,
 )  # fmt: skip
+from lcmesh.bench.suite import built_version
 from lcmesh.bench.machine import machine_info
 from lcmesh.distill.ppo_config import CASES
 from lcmesh.twin.controllers import make_controller
@@ -123,9 +124,9 @@ def run_bench_control(quick: bool = False, plot_dir: Path | None = None, progres
     units: list[Unit] = []
 
     def add(slot: tuple[str, ...], fn: str, system: str, controller: str, policy: Path | None = None, **kw) -> None:
+        options = {"policy": str(policy)} if policy else None
         kwargs = {"system_name": system, "controller": controller, "policy": str(policy) if policy else None, **kw}
-        versions = (twin_version(), _controller_version(system, controller, str(policy) if policy else None),
-                    tree_digest("distill"))  # fmt: skip
+        versions = (twin_version(), built_version(controller, load_system(system), options), tree_digest("distill"))
         units.append(Unit(f"lcmesh.bench.control:{fn}", kwargs, label=" ".join(slot), versions=versions))
         slots.append(slot)
 
@@ -190,11 +191,6 @@ def run_bench_control(quick: bool = False, plot_dir: Path | None = None, progres
 def _row_order(key: str) -> tuple[int, str]:
     """static, 1 (G36), the cases in order, 7b after 7."""
     return (-1, key) if key == "static" else (int(key.rstrip("b")), key)
-
-
-def _controller_version(system_name: str, controller: str, policy: str | None) -> str:
-    built = make_controller(controller, load_system(system_name), **({"policy": policy} if policy else {}))
-    return controller_version(built)
 
 
 def plot_control(result: dict, plot_dir: Path, hours: float) -> list[str]:
@@ -322,8 +318,7 @@ def render_control(r: dict) -> str:
                           f"CT {cl['ct_power_kw_avg']:.1f} kW."]  # fmt: skip
     for p in r.get("plots", []):
         lines += ["", f"![{Path(p).stem}]({p})"]
-    if cached := cache_line(r.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(r.get("cache", {}))
     if "actions" in r:
         lines += ["", render_actions(r["actions"], level=3)]
     return "\n".join(lines)

@@ -110,7 +110,8 @@ def tree_digest(*paths: str | Path) -> str:
         )
         for f in files:
             h.update(str(f.relative_to(root.parent)).encode())
-            h.update(_file_digest(str(f), f.stat().st_mtime_ns, f.stat().st_size).encode())
+            stat = f.stat()
+            h.update(_file_digest(str(f), stat.st_mtime_ns, stat.st_size).encode())
     return h.hexdigest()
 
 
@@ -375,6 +376,12 @@ def cache_summary(outcomes: Iterable[Outcome]) -> dict:
             "computed": len(outcomes) - len(cached), "failed": sum(o.error is not None for o in outcomes),
             "computed_commit": code_commit(),
             "unit_seconds": sum(o.seconds for o in outcomes if not o.cached)}  # fmt: skip
+
+
+def cache_lines(summary: dict) -> list[str]:
+    """The lines a benchmark's table ends with: which units came from the cache (none without a summary)."""
+    line = cache_line(summary)
+    return ["", f"Units (lcmesh/bench/engine.py): {line}"] if line else []
 
 
 def cache_line(summary: dict) -> str:

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from lcmesh.bench.engine import cache_line
+from lcmesh.bench.engine import cache_lines
 from lcmesh.bench.machine import machine_info
 
 EVAL_TRACE = "frontier-2024-04-07"
@@ -297,8 +297,7 @@ def _closed_loop(cfg: BenchLlmConfig, system, say, engine=None) -> dict:
     for name in LOOP_CONTROLLERS:
         options = _llm_options(cfg, cfg.period_steps) if name == "llm" else None
         try:
-            units += day_units(name, cfg.system, days, None, options=options, windows=spans,
-                               num_cpus=max(1, cfg.control_threads) if name == "llm" else None)  # fmt: skip
+            units += day_units(name, cfg.system, days, None, options=options, windows=spans)
             rows[name] = {"days": {}}
         except Exception as exc:  # a controller not trained yet is reported, not fatal
             rows[name] = {"error": f"{type(exc).__name__}: {exc}"}
@@ -333,8 +332,7 @@ def _whole_days(cfg: BenchLlmConfig, system, say, engine=None) -> dict:
 
     days = _days(cfg)
     units = day_units("ppo", cfg.system, days, None)
-    units += day_units("llm", cfg.system, days, None, options=_llm_options(cfg, cfg.whole_day_period),
-                       num_cpus=max(1, cfg.control_threads))  # fmt: skip
+    units += day_units("llm", cfg.system, days, None, options=_llm_options(cfg, cfg.whole_day_period))
     outcomes = run_units(units, engine, lambda stage, done, total: say(f"whole days: {stage} ({done}/{total})"))
     failed = [f"{o.unit.label}: {o.error}" for o in outcomes if o.error is not None]
     if failed:
@@ -342,8 +340,6 @@ def _whole_days(cfg: BenchLlmConfig, system, say, engine=None) -> dict:
     rows = {"ppo": {d.label: o.result for d, o in zip(days, outcomes[:len(days)])},
             "llm": {d.label: o.result for d, o in zip(days, outcomes[len(days):])}}  # fmt: skip
     stats = [r.pop("controller_stats") for r in rows["llm"].values()]
-    for r in rows["ppo"].values():
-        r.pop("controller_stats", None)
     mean = {name: float(np.mean([d["d_blade_pct"] for d in r.values()])) for name, r in rows.items()}
     return {"period_steps": cfg.whole_day_period, "days": rows, "mean_d_blade": mean,
             "gap_points": mean["ppo"] - mean["llm"], "llm_stats": _sum_stats(stats),
@@ -492,8 +488,7 @@ def _render_loop(cl: dict) -> list[str]:
     if checks:
         lines += ["", "| issue 22 target (closed loop) | measured | met |", "|---|---|---|"]
         lines += [f"| {c['target']} | {c['measured']} | {'yes' if c['met'] else 'no'} |" for c in checks]
-    if cached := cache_line(cl.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(cl.get("cache", {}))
     return lines
 
 
@@ -549,6 +544,5 @@ def _render_whole_days(wd: dict) -> list[str]:
                  f"for the teacher ({100 * (cooling['llm'] / cooling['ppo'] - 1):+.1f} %). A day took {wall_h:.2f} h "
                  f"of wall time for the LLM (one thread; on shared cores, so the decision times above are an upper bound)." + (f" Not run: {', '.join(missing)} ({len(labels)} of {len(TEST_DAYS)} "
                                                  f"test days measured)." if missing else ""))  # fmt: skip
-    if cached := cache_line(wd.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(wd.get("cache", {}))
     return lines

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from lcmesh.bench.engine import (
-    EngineSettings, Outcome, Unit, cache_line, cache_summary, controller_version, run_units, twin_version,
+    EngineSettings, Outcome, Unit, cache_lines, cache_summary, controller_version, run_units, twin_version,
 )  # fmt: skip
 from lcmesh.bench.machine import machine_info
 from lcmesh.distill.tree_config import TreeDistillConfig
@@ -234,16 +234,23 @@ def suite_plan(controllers: list[str], system_name: str, days: tuple[Day, ...], 
     return SuitePlan(list(controllers), system_name, tuple(days), hours, guardrails, facts, build_errors, units)
 
 
+def built_version(controller: str, system: SystemDescription, options: dict | None = None) -> str:
+    """``controller`` built once with ``options``, for its version (code and artifact files: a cache key), then
+    closed; one that cannot be built raises here, before anything runs."""
+    built = make_controller(controller, system, **(options or {}))
+    try:
+        return controller_version(built)
+    finally:
+        getattr(built, "close", lambda: None)()
+
+
 def day_units(controller: str, system_name: str, days: Iterable[Day], hours: float | None, guardrails: bool = True,
               options: dict | None = None, tag: str | None = None,
-              windows: dict[str, tuple[int, int, int]] | None = None, num_cpus: float | None = None) -> list[Unit]:  # fmt: skip
-    """One unit per day of ``controller`` (built with ``options``, JSON-able keywords); it is built once here, for its
-    version (code and artifact files: the cache key) and so that one that cannot be built raises before anything
-    runs. ``windows``: per day label, the (start, warm-up, scored) steps of a slice of the day (see `suite_day`)."""
+              windows: dict[str, tuple[int, int, int]] | None = None) -> list[Unit]:  # fmt: skip
+    """One unit per day of ``controller`` (built with ``options``, JSON-able keywords; see `built_version`).
+    ``windows``: per day label, the (start, warm-up, scored) steps of a slice of the day (see `suite_day`)."""
     system = load_system(system_name)
-    built = make_controller(controller, system, **(options or {}))
-    version = controller_version(built)
-    getattr(built, "close", lambda: None)()
+    version = built_version(controller, system, options)
     # a system file is named by its absolute path: a Ray worker's working directory need not be ours
     system_ref = str(Path(system_name).resolve()) if system_name.endswith(".json") else system_name
     versions = (twin_version(), version, system.model_dump_json())
@@ -252,18 +259,22 @@ def day_units(controller: str, system_name: str, days: Iterable[Day], hours: flo
                   "controller": controller, "guardrails": guardrails, "options": options or {},
                   "window": (windows or {}).get(day.label)},
                  label=f"{system.name}: {tag or controller} on {day.label}",
-                 num_cpus=num_cpus if num_cpus is not None else unit_cpus(controller), versions=versions,
+                 num_cpus=unit_cpus(controller, options), versions=versions,
                  cost=10.0 if controller in NEEDS_PLANT else 1.0)  # one that simulates the plant itself: the longest
             for day in days]  # fmt: skip
 
 
-def unit_cpus(controller: str) -> float:
-    """The CPUs a day of ``controller`` needs: one for the twin, the llama.cpp threads for the LLM controller."""
+def unit_cpus(controller: str, options: dict | None = None) -> float:
+    """The CPUs a day of ``controller`` needs: one for the twin, the llama.cpp threads for the LLM controller (its
+    ``threads`` option, else its settings'; 0, llama.cpp's default here, is one)."""
     if controller != "llm":
         return 1.0
-    from lcmesh.llm.controller import LlmControllerSettings
+    threads = (options or {}).get("threads")
+    if threads is None:
+        from lcmesh.llm.controller import LlmControllerSettings
 
-    return float(max(1, LlmControllerSettings().control_threads))
+        threads = LlmControllerSettings().control_threads
+    return float(max(1, threads))
 
 
 def suite_day(system: str, trace: str, scenario: str, hours: float | None, controller: str, guardrails: bool,
@@ -446,8 +457,7 @@ def render_suite(r: dict) -> str:
         f"commit {m['commit']}; {m['date']}. Mean wall time of a day's loop: {', '.join(walls) or 'none'}."
     )
     lines += ["", machine]
-    if cached := cache_line(r.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(r.get("cache", {}))
     return "\n".join(lines)
 
 
@@ -509,8 +519,7 @@ def render_hru(r: dict) -> str:
         )  # fmt: skip
     m = r["machine"]
     lines += ["", f"Machine: {m['cpu']}, {m['logical_cpus']} logical CPUs; commit {m['commit']}; {m['date']}."]
-    if cached := cache_line(r.get("cache", {})):
-        lines += ["", f"Units (lcmesh/bench/engine.py): {cached}"]
+    lines += cache_lines(r.get("cache", {}))
     return "\n".join(lines)
 
 

@@ -51,7 +51,6 @@ def bench_chat(
     from lcmesh.bench.machine import machine_info
     from lcmesh.llm.model_cache import models_dir
 
-    settings = engine  # EngineSettings, from @engine_options
     if split not in ("test", "dev", "all"):
         fail(f"--split must be test, dev or all, not {split!r}")
     splits = ["dev", "test"] if split == "all" else [split]
@@ -72,7 +71,7 @@ def bench_chat(
     # every (planner, part) is a unit on the engine (lcmesh/bench/engine.py); latency is each unit's own, one CPU each
     units = chat.part_units(names, parts, site)
     with stage_progress("planners on the question parts") as on_progress:
-        outcomes = run_units(units, settings, on_progress)
+        outcomes = run_units(units, engine, on_progress)
     for o in outcomes:
         name, part = o.unit.kwargs["planner"], chat.part_name(o.unit.kwargs["question_set"], o.unit.kwargs["split"])
         if o.error is not None:

@@ -120,10 +120,9 @@ def bench_control(
     """Ablation (Table 3), scaling (Table 4), power-valve correlation (Table 5), trees (Tables 12-15)."""
     from lcmesh.bench.control import render_control, run_bench_control
 
-    settings = engine  # EngineSettings, from @engine_options
     with stage_progress("the paper's tables on the Frontier day") as on_progress:
         try:
-            result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress, engine=settings)
+            result = run_bench_control(quick=quick, plot_dir=plots, progress=on_progress, engine=engine)
         except RuntimeError as exc:
             fail(str(exc))
     say_cache(result)
@@ -174,7 +173,6 @@ def bench_suite(
     )  # fmt: skip
     from lcmesh.cli.common import load_system_or_fail
 
-    settings = engine  # EngineSettings, from @engine_options
     names = [n.strip() for n in controllers.split(",") if n.strip()]
     if not names:
         fail(f"`--controllers` must name at least one controller, e.g. static,g36; got {controllers!r}")
@@ -188,7 +186,7 @@ def bench_suite(
         fail(f"`--days` must name at least one day, got {days!r}")
     if hru:
         with stage_progress("held-out days, without and with the HRU") as on_progress:
-            result = run_hru(names, chosen, hours=hours, progress=on_progress, guardrails=guardrails, engine=settings)
+            result = run_hru(names, chosen, hours=hours, progress=on_progress, guardrails=guardrails, engine=engine)
         say_cache(result)
         for name, row in result["rows"].items():
             if row["error"] is not None:
@@ -200,7 +198,7 @@ def bench_suite(
         return
     with stage_progress("held-out days") as on_progress:
         result = run_suite(names, system, chosen, hours=hours, reference=reference, progress=on_progress,
-                           guardrails=guardrails, engine=settings)  # fmt: skip
+                           guardrails=guardrails, engine=engine)  # fmt: skip
     say_cache(result)
     for check in deploy_checks(result):
         colour = "green" if check["met"] else "yellow"
@@ -236,13 +234,12 @@ def bench_ablation(
     from lcmesh.cli.common import load_system_or_fail
 
     load_system_or_fail(system)
-    settings = engine  # EngineSettings, from @engine_options
     if not folder.is_dir():
         fail(f"`--folder` must be a folder of case{{C}}-seed{{S}}.json policies, got {folder}")
     try:
         chosen = TEST_DAYS if days is None else days_named([d.strip() for d in days.split(",") if d.strip()])
         with stage_progress("ablation seeds on the held-out days") as on_progress:
-            result = run_ablation(folder, system, chosen, hours=hours, progress=on_progress, engine=settings)
+            result = run_ablation(folder, system, chosen, hours=hours, progress=on_progress, engine=engine)
     except (ValueError, FileNotFoundError, RuntimeError) as exc:
         fail(str(exc))
     say_cache(result)
@@ -266,7 +263,6 @@ def train_sweep(
     from lcmesh.distill.ppo_config import PpoConfig
     from lcmesh.distill.sweep import parse_grid, run_sweep, sweep_configs
 
-    settings = engine  # EngineSettings, from @engine_options
     try:
         seed_list = [int(s) for s in seeds.split(",") if s.strip()]
         # every run's settings are checked (PpoConfig validates) before any starts
@@ -274,7 +270,7 @@ def train_sweep(
     except ValueError as exc:
         fail(f"{exc}")
     with stage_progress(f"{len(configs)} PPO runs") as on_progress:
-        outcomes = run_sweep(configs, settings, on_progress)
+        outcomes = run_sweep(configs, engine, on_progress)
     rows = []
     for o in outcomes:
         if o.error is not None:

@@ -78,7 +78,6 @@ def bench_llm(
     """Load time, explanation and control latency, action R^2 vs the teacher, closed-loop KPIs beside G36/PPO/trees."""
     from lcmesh.bench.llm import BenchLlmConfig, render_llm, run_bench_llm
 
-    settings = engine  # EngineSettings, from @engine_options
     if days:
         from lcmesh.bench.suite import TEST_DAYS, VALIDATION_DAYS, days_named
 
@@ -97,7 +96,7 @@ def bench_llm(
                               sections=sections, whole_day_period=whole_day_period)
     with progress_bar() as progress:
         task = progress.add_task("bench llm", total=None)
-        result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg), engine=settings)
+        result = run_bench_llm(cfg, on_stage=lambda msg: progress.update(task, description=msg), engine=engine)
     write_bench(json_out, markdown, "llm", result, render=render_llm)
 
 

@@ -9,7 +9,7 @@ changed or whose folder is gone; a stopped sweep resumes with the runs it had fi
 from __future__ import annotations
 
 import itertools
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from lcmesh.bench.engine import EngineSettings, Outcome, Progress, Unit, run_units, tree_digest, twin_version
@@ -18,7 +18,6 @@ from lcmesh.distill.ppo_config import PpoConfig
 
 def parse_grid(items: list[str]) -> dict[str, list]:
     """``["reward=lcopt,energy", "ent_coef=0.01,0.02"]`` -> values per PpoConfig field, typed as the field is."""
-    types = {f.name: f.type for f in fields(PpoConfig)}
     defaults = asdict(PpoConfig())
     grid: dict[str, list] = {}
     for item in items:
@@ -26,8 +25,8 @@ def parse_grid(items: list[str]) -> dict[str, list]:
         name = name.strip().replace("-", "_")
         if not sep or not values.strip():
             raise ValueError(f"`--grid` items are name=v1,v2,...; got {item!r}")
-        if name not in types or name in ("seed", "out"):
-            known = ", ".join(sorted(set(types) - {"seed", "out"}))
+        if name not in defaults or name in ("seed", "out"):
+            known = ", ".join(sorted(set(defaults) - {"seed", "out"}))
             raise ValueError(f"`--grid`: {name!r} is not a PPO setting one can sweep (known: {known})")
         kind = type(defaults[name]) if defaults[name] is not None else str
         grid[name] = [_typed(kind, v.strip(), name) for v in values.split(",") if v.strip()]
