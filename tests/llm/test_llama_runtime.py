@@ -96,7 +96,7 @@ def test_decoding_under_the_grammar_always_yields_allowed_values(llama_base):
 
 
 def test_a_plan_decoded_under_the_json_schema_parses(llama_base):
-    from lcmesh.mesh.agents.ui.planner import PLANNER_TOOLS, plan_messages, plan_schema
+    from lcmesh.assistant.plan import PLANNER_TOOLS, plan_messages, plan_schema
 
     for question in ("which cabinet is the hottest?", "how much energy did the pumps use in the last 2 hours?"):
         gen = llama_base.chat([plan_messages(question)], max_new_tokens=64, json_schema=plan_schema())[0]

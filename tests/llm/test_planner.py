@@ -10,7 +10,7 @@ import pytest
 
 from lcmesh.distill.planner_data import CATEGORIES, canonical_calls, generate, typo
 from lcmesh.llm.base import LlmBackendSettings
-from lcmesh.mesh.agents.ui.planner import (
+from lcmesh.assistant.plan import (
     PLANNER_ADAPTER, PLANNER_TOOLS, LlmPlanner, OpenAiPlanner, PlanError, RulePlanner, ToolCall, make_planner,
     openai_tools, parse_plan, plan_text, same_plan,
 )  # fmt: skip
@@ -195,7 +195,9 @@ def test_openai_tool_schemas_are_the_request_models():
 
 
 def test_make_planner_names_the_kinds():
-    assert isinstance(make_planner("rules"), RulePlanner)
+    from lcmesh.assistant.understand import RuleReader
+
+    assert isinstance(make_planner("rules"), RuleReader)  # the rules' calls, read back into a Query
     with pytest.raises(ValueError, match="did you mean 'rules'"):
         make_planner("rule")
 
@@ -241,7 +243,7 @@ def test_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeout(planner_bac
 
 
 def test_while_the_model_loads_the_rules_plan_and_say_so(tmp_path):
-    from lcmesh.mesh.agents.ui.planner import LlmPlanner
+    from lcmesh.assistant.plan import LlmPlanner
 
     planner = LlmPlanner(adapter=tmp_path)  # no adapter here: the load fails, the rules keep answering
     planner._warming = True
@@ -285,7 +287,7 @@ def test_on_llama_cpp_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeou
 
 
 def test_a_models_misspelt_choice_and_stray_key_are_repaired_and_said():
-    from lcmesh.mesh.agents.ui.planner import parse_plan, repair_args
+    from lcmesh.assistant.plan import parse_plan, repair_args
 
     notes: list[str] = []
     calls = parse_plan('[{"tool":"plant_state","args":{"quantity":"supply_temperature","plant":1,"cabinet":2}}]', notes)

@@ -649,7 +649,7 @@ def function_words(kind: str) -> tuple[str, ...]:
     return _all(FUNCTION_WORDS[kind])
 
 
-# --- what a question asks for (the chat's question check, lcmesh/mesh/agents/ui/chat.py uncovered()) ----------------
+# --- what a question asks for (the chat's question check, lcmesh/assistant/engine.py uncovered()) ----------------
 # Words in a question that name something the answer must address; a plan that covers none of their concepts
 # answers another question, and its answer is not marked grounded (the reply says what may be missing).
 QUESTION_CONCEPTS: list[tuple[re.Pattern, frozenset[str]]] = [(re.compile(p, re.IGNORECASE), frozenset(c)) for p, c in (

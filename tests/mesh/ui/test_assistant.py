@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from lcmesh.bench.chat_site import open_site, record_site
-from lcmesh.mesh.agents.ui.chat import ChatEngine, ToolRunner, check_answer
-from lcmesh.mesh.agents.ui.facts import format_value, numbers_in
-from lcmesh.mesh.agents.ui.phrasing import Phrased
-from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall
+from lcmesh.assistant.engine import ChatEngine, ToolRunner, check_answer
+from lcmesh.assistant.facts import format_value, numbers_in
+from lcmesh.assistant.phrasing import Phrased
+from lcmesh.assistant.plan import Plan, RulePlanner, ToolCall
 
 K0 = 273.15
 
@@ -141,7 +141,7 @@ def test_every_writer_passes_the_guard_on_real_results(engine, site):
 
 
 def engine_facts(reply):
-    from lcmesh.mesh.agents.ui.facts import ChatFact
+    from lcmesh.assistant.facts import ChatFact
 
     return [ChatFact.model_validate(f) for f in reply["facts"]]
 

@@ -10,7 +10,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from lcmesh.mesh.agents.ui.facts import numbers_in
+from lcmesh.assistant.facts import numbers_in
 from tests.mesh.conftest import wait_until
 
 K0 = 273.15

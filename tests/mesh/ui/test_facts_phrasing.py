@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from lcmesh.mesh.agents.ui.facts import FactBook, fact, format_value, ungrounded_numbers
-from lcmesh.mesh.agents.ui.phrasing import LlmPhraser, TemplatePhraser, chat_messages, make_phraser
+from lcmesh.assistant.facts import FactBook, fact, format_value, ungrounded_numbers
+from lcmesh.assistant.phrasing import LlmPhraser, TemplatePhraser, chat_messages, make_phraser
 
 
 def test_display_precision_follows_the_unit():

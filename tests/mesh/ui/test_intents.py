@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from lcmesh.mesh.agents.ui.intents import classify
+from lcmesh.assistant.intents import classify
 from lcmesh.twin.system import PSI_TO_PA
 
 

@@ -15,10 +15,10 @@ import pytest
 
 from lcmesh.bench.chat import site_runner
 from lcmesh.bench.chat_site import ensure_site
-from lcmesh.mesh.agents.ui import writer
-from lcmesh.mesh.agents.ui.chat import ChatEngine, check_answer
-from lcmesh.mesh.agents.ui.facts import FactBook, numbers_in, ungrounded_numbers
-from lcmesh.mesh.agents.ui.language import (
+from lcmesh.assistant import write as writer
+from lcmesh.assistant.engine import ChatEngine, check_answer
+from lcmesh.assistant.facts import FactBook, numbers_in, ungrounded_numbers
+from lcmesh.assistant.language import (
     ENTITY_FORMS,
     FOLDS,
     LABELS,
@@ -27,7 +27,7 @@ from lcmesh.mesh.agents.ui.language import (
     detect_language,
     quantity_label,
 )
-from lcmesh.mesh.agents.ui.planner import Plan, ToolCall
+from lcmesh.assistant.plan import Plan, ToolCall
 from lcmesh.mesh.tools import semantic
 from lcmesh.mesh.tools.plant_data import QUANTITIES
 

@@ -11,8 +11,8 @@ import pytest
 
 from lcmesh.bench.chat import site_runner
 from lcmesh.bench.chat_site import record_site
-from lcmesh.mesh.agents.ui.chat import ChatEngine, uncovered
-from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall, split_parts
+from lcmesh.assistant.engine import ChatEngine, uncovered
+from lcmesh.assistant.plan import Plan, RulePlanner, ToolCall, split_parts
 
 K0 = 273.15
 

@@ -17,14 +17,14 @@ import time
 
 from lcmesh.mesh import keys
 from lcmesh.mesh.agents.base import Agent
-from lcmesh.mesh.agents.ui.sources import ChatSources, NotReady
+from lcmesh.assistant.sources import ChatSources, NotReady
 from lcmesh.mesh.agents.ui.app import UiContext, create_app
-from lcmesh.mesh.agents.ui.chat import ChatEngine
+from lcmesh.assistant.engine import ChatEngine
 from lcmesh.mesh.agents.ui.config import UiSettings
 from lcmesh.mesh.agents.ui.gateway import MeshGateway
 from lcmesh.mesh.agents.ui.live import EventHub, LiveStore, dumps
-from lcmesh.mesh.agents.ui.phrasing import make_phraser
-from lcmesh.mesh.agents.ui.planner import make_planner
+from lcmesh.assistant.phrasing import make_phraser
+from lcmesh.assistant.plan import make_planner
 from lcmesh.mesh.agents.ui.security import is_loopback, resolve_token, weak_token_reason
 from lcmesh.mesh.bus import QueryError
 from lcmesh.mesh.history import HistoryReader
@@ -83,8 +83,9 @@ class UiAgent(Agent):
                               applied=store.latest_applied)  # fmt: skip
         self.ctx = UiContext(settings=s, ui=ui, system=system, store=store, hub=hub, token=token,
                              history=self.history_reader, config_doc=lambda: self.config_doc, gateway=gateway,
-                             chat=ChatEngine(sources, phraser, planner=planner), agent_id=self.agent_id,
-                             phraser_note=note)  # fmt: skip
+                             chat=ChatEngine(sources, phraser, planner=planner, session_s=ui.chat_session_s,
+                                             check=ui.chat_check),
+                             agent_id=self.agent_id, phraser_note=note)  # fmt: skip
         self._serve_data_tools(sources)
         self._preload_alerts(store)
         self.watch_config(self._on_config)

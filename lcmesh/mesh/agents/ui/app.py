@@ -36,8 +36,8 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from lcmesh.mesh.agents.ui.sources import NotReady
-from lcmesh.mesh.agents.ui.chat import ChatEngine
+from lcmesh.assistant.sources import NotReady
+from lcmesh.assistant.engine import ChatEngine
 from lcmesh.mesh.agents.ui.config import UiSettings
 from lcmesh.mesh.agents.ui.gateway import MeshGateway, MeshRefused, MeshUnavailable
 from lcmesh.mesh.agents.ui.guards import BodyLimit, HostCheck, WriteAuth, routes_needing

@@ -13,7 +13,7 @@ from pydantic import (
     AwareDatetime, BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator, model_validator,
 )  # fmt: skip
 
-from lcmesh.mesh.agents.ui.facts import ChatFact
+from lcmesh.assistant.facts import ChatFact
 from lcmesh.mesh.messages import MeshConfig
 from lcmesh.twin.controllers import NEEDS_PLANT, PLUGIN_PATTERN, REGISTRY, is_plugin, mesh_refusal
 
@@ -413,6 +413,10 @@ class ControlAnswer(BaseModel):
 class ChatQuestion(_In):
     message: str = Field(min_length=1, description="the operator's question (plain text; never executed; at most "
                          "LCMESH_UI_CHAT_MAX_CHARS characters)")  # fmt: skip
+    session: str | None = Field(None, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_-]+$",
+                                description="a chat session id of the client's choosing: a follow-up (\"and cabinet "
+                                "2?\", \"why?\") reads the previous question of the same session; sessions hold the "
+                                "last question only and expire (LCMESH_UI_CHAT_SESSION_S)")  # fmt: skip
 
 
 class ChatToolCall(BaseModel):
@@ -448,3 +452,9 @@ class ChatAnswer(BaseModel):
     missing: list[str] = Field([], description="what the question asks for that the results do not give")
     problems: list[ChatProblem] = []
     lang: str = "en"
+    query: dict[str, Any] | None = Field(None, description="the typed reading of the question the calls follow from "
+                                         "(asks, lang, follow_up; lcmesh/assistant/query.py), follow-ups resolved")
+    session: str | None = None
+    follow_up: bool = Field(False, description="the question was read as continuing the session's previous one")
+    detail: list[dict[str, str]] = Field([], description="longer texts the answer leads with the start of (a "
+                                         "decision's whole reasoning): {title, text}, shown one click away")

@@ -18,7 +18,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from lcmesh.mesh.agents.ui.sources import NotReady
+from lcmesh.assistant.sources import NotReady
 from lcmesh.mesh.agents.ui.schemas import (
     PSI_MAX, TEMP_C_MAX, ConfigChange, ControlAnswer, ModeRequest, ProposalStamp, SetpointsRequest, errors,
 )  # fmt: skip

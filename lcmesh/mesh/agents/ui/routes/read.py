@@ -12,7 +12,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from lcmesh.mesh.agents.ui.sources import NotReady
+from lcmesh.assistant.sources import NotReady
 from lcmesh.mesh.agents.ui.schemas import (
     AgentsAnswer, AlertsAnswer, CabinetView, DecisionsAnswer, Health, HistoryAnswer, StateView, TowerView, errors,
 )  # fmt: skip

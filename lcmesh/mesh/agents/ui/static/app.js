@@ -401,9 +401,15 @@ function showAnswer(d) {
   if (d.declined) {  // an answer to a neighbouring question is not shown as the answer
     box.append(el("div", { class: "muted declined-note" }, `not an answer: the question asks for ${(d.missing || []).join(", ")}`));
   }
+  (d.detail || []).forEach((x) => {  // a decision's whole reasoning, behind a click
+    const more = el("details", { class: "answer-detail" });
+    more.append(el("summary", { class: "muted" }, `the whole reasoning: ${x.title}`), el("div", {}, x.text));
+    box.append(more);
+  });
   if (d.facts && d.facts.length) {
     const det = el("details");
-    const about = [`${d.facts.length} fact(s)`, d.intent, `planned by ${d.planned_by}`, d.phrased_by,
+    const about = [`${d.facts.length} fact(s)`, d.intent, `read by ${d.planned_by}`, d.follow_up ? "follow-up" : "",
+      d.plan_note ? `(${d.plan_note})` : "", d.phrased_by,
       d.grounded ? "grounded" : "not grounded", `${fmt(d.elapsed_ms, 0)} ms`];
     det.append(el("summary", { class: "muted" }, about.filter(Boolean).join(" · ")));
     const ul = el("ul", { class: "facts" });
@@ -428,6 +434,9 @@ function showAnswer(d) {
   return box;
 }
 
+// one chat session per page: a follow-up ("and cabinet 2?", "why?") reads the previous question
+const chatSession = (crypto.randomUUID ? crypto.randomUUID() : String(Math.random()).slice(2)).replace(/[^A-Za-z0-9_-]/g, "");
+
 $("chat-form").addEventListener("submit", async (e) => {
   e.preventDefault();
   const input = $("chat-input");
@@ -437,7 +446,7 @@ $("chat-form").addEventListener("submit", async (e) => {
   log.append(el("div", { class: "q" }, message));
   input.value = "";
   try {
-    const r = await fetch("/api/chat", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ message }) });
+    const r = await fetch("/api/chat", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ message, session: chatSession }) });
     const d = await r.json();
     if (!r.ok) { log.append(el("div", { class: "chat-answer error" }, `${r.status}: ${d.detail}`)); }
     else log.append(showAnswer(d));

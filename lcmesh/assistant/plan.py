@@ -35,7 +35,7 @@ from pydantic import BaseModel, ValidationError
 
 from lcmesh.llm.budget import Clock
 from lcmesh.llm.io_format import load_template
-from lcmesh.mesh.agents.ui.intents import Intent, classify, find_change, normalize
+from lcmesh.assistant.intents import Intent, classify, find_change, normalize
 from lcmesh.mesh.tools.plant_data import (
     AgentsRequest, AlertsRequest, BandRequest, CompareRequest, ControllerRequest, DecisionRequest, EnergyRequest,
     HistoryRequest, OverviewRequest, ProposeRequest, RankRequest, StateRequest, WhatIfSetpointRequest,
@@ -53,10 +53,10 @@ PLANNER_TOOLS: dict[str, type[BaseModel]] = {
     "energy_used": EnergyUsedRequest, "tracking_gap": TrackingGapRequest, "peak": PeakRequest,
     "weather_effect": WeatherRequest, "whatif_controller": WhatIfControllerRequest,
 }  # fmt: skip
-PLANNER_ADAPTER = Path(__file__).resolve().parents[3] / "artifacts" / "llm-planner"
+PLANNER_ADAPTER = Path(__file__).resolve().parents[1] / "artifacts" / "llm-planner"
 MAX_CALLS = 4  # a question asks a few things at most; more is a runaway answer
 PLAN_STOP = ("}]", "[]")  # a plan's JSON list ends with one of these (no argument is an empty list)
-log = logging.getLogger("lcmesh.mesh.agents.ui")
+log = logging.getLogger("lcmesh.assistant")
 MAX_NEW_TOKENS = 96  # two calls with arguments take about 60
 TIME_BUDGET_S = 2.4  # the plan's share of the 3 s answer (the mesh's agents share the cores); then the rules plan
 
@@ -82,6 +82,7 @@ class Plan:
     note: str | None = None
     raw: str | None = None  # the LLM's own output, when there was one
     seconds: float = 0.0
+    query: Any = None  # the typed reading the calls follow from (lcmesh.assistant.query.Query), when there is one
 
 
 class Planner(Protocol):
@@ -413,7 +414,7 @@ class RulePlanner:
         calls = _checked(intent_calls(classify(question)))
         parts = split_parts(question)
         if len(parts) > 1:  # a multi-part question: each part's calls, kept when they cover more of the question
-            from lcmesh.mesh.agents.ui.chat import uncovered
+            from lcmesh.assistant.engine import uncovered
 
             combined: list[ToolCall] = []
             previous = None
@@ -528,6 +529,19 @@ class LlmPlanner(_Fallbacks):
         thread.start()
         return thread
 
+    # what a subclass reading another output changes: the prompt, the schema it is decoded under, the parser
+    stop: tuple[str, ...] = PLAN_STOP
+
+    def messages(self, question: str) -> list[dict[str, str]]:
+        return plan_messages(question)
+
+    def schema(self) -> dict:
+        return plan_schema()
+
+    def parse(self, text: str, repaired: list[str], question: str) -> Plan:
+        """The plan in the model's text (PlanError when it holds none)."""
+        return Plan(parse_plan(text, repaired), by="llm")
+
     def plan(self, question: str) -> Plan:
         t0 = self.clock()
         self.plans += 1
@@ -536,17 +550,17 @@ class LlmPlanner(_Fallbacks):
         try:
             backend = self.backend
             with self._lock:
-                grammar = {"json_schema": plan_schema()} if getattr(backend, "runtime", "") == "llama.cpp" else {}
-                gen = backend.chat([plan_messages(question)], max_new_tokens=self.max_new_tokens, stop=list(PLAN_STOP),
-                                   time_budget_s=self.time_budget_s, **grammar)[0]  # fmt: skip
+                grammar = {"json_schema": self.schema()} if getattr(backend, "runtime", "") == "llama.cpp" else {}
+                gen = backend.chat([self.messages(question)], max_new_tokens=self.max_new_tokens,
+                                   stop=list(self.stop), time_budget_s=self.time_budget_s, **grammar)[0]  # fmt: skip
         except Exception as exc:  # a missing adapter or a failing backend: the rules answer
             return self._fall_back(question, "backend", f"{type(exc).__name__}: {exc}", None, t0)
-        if gen.failure and not gen.text.rstrip().endswith(PLAN_STOP):
+        if gen.failure and not gen.text.rstrip().endswith(self.stop):
             return self._fall_back(question, gen.failure if gen.failure == "timeout" else "backend",
                                    gen.failure, gen.text, t0)  # fmt: skip
         repaired: list[str] = []
         try:
-            calls = parse_plan(gen.text, repaired)
+            plan = self.parse(gen.text, repaired, question)
         except PlanError as exc:
             if gen.finish_reason == "length":
                 return self._fall_back(question, "length", f"no complete plan in {gen.new_tokens} tokens", gen.text, t0)
@@ -554,7 +568,8 @@ class LlmPlanner(_Fallbacks):
         if repaired:  # said, and counted: the model planned, its arguments were put right
             self.repairs += 1
         note = f"llm arguments repaired: {'; '.join(repaired)}"[:300] if repaired else None
-        return Plan(calls, by="llm", note=note, raw=gen.text, seconds=self.clock() - t0)
+        plan.note, plan.raw, plan.seconds = note, gen.text, self.clock() - t0
+        return plan
 
 
 # --- any OpenAI-compatible endpoint with function calling ----------------------------------------------
@@ -646,7 +661,11 @@ class OpenAiPlanner(_Fallbacks):
 
 def make_planner(kind: Literal["llm", "openai", "rules"] = "llm", **kwargs) -> Planner:
     """The planner the UI settings name; ``kwargs`` go to its constructor (``settings=`` for openai)."""
-    planners = {"llm": LlmPlanner, "openai": OpenAiPlanner, "rules": RulePlanner}
+    from lcmesh.assistant.understand import LlmReader, RuleReader, reads_queries
+
+    adapter = kwargs.get("adapter") or PLANNER_ADAPTER
+    llm = LlmReader if reads_queries(adapter) else LlmPlanner  # an adapter trained on tool-call lists still plans
+    planners = {"llm": llm, "openai": OpenAiPlanner, "rules": RuleReader}
     if kind not in planners:
         import difflib
 

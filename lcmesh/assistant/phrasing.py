@@ -20,9 +20,9 @@ from importlib import resources
 from string import Template
 from typing import Any, Protocol
 
-from lcmesh.mesh.agents.ui.facts import ChatFact, numbers_in, ungrounded_numbers
+from lcmesh.assistant.facts import ChatFact, numbers_in, ungrounded_numbers
 
-log = logging.getLogger("lcmesh.mesh.agents.ui")
+log = logging.getLogger("lcmesh.assistant")
 PROMPT = "chat_answer"
 TIME_BUDGET_S = 4.0  # the LLM's share of the 5 s answer target; an unfinished text gives way to the draft
 STOP = ("\n\nRewrite", "\nRewrite the", "\nOperator question", "\nQuestion type", "\nFacts:", "\nDraft answer")

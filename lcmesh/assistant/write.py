@@ -15,11 +15,13 @@ alert, an explanation, a tool's refusal) is cited as the mesh wrote it, in Engli
 
 from __future__ import annotations
 
+import re
+
 from collections.abc import Callable
 from typing import Any
 
-from lcmesh.mesh.agents.ui.facts import FactBook, fact, format_value
-from lcmesh.mesh.agents.ui.language import ENTITY_FORMS, FOLDS, SUPERLATIVES, phrase, quantity_label
+from lcmesh.assistant.facts import FactBook, fact, format_value
+from lcmesh.assistant.language import ENTITY_FORMS, FOLDS, SUPERLATIVES, phrase, quantity_label
 from lcmesh.mesh.tools.plant_data import QUANTITIES
 
 TOOL_SOURCE = "tool"
@@ -293,12 +295,30 @@ def _decision(w: Writer, r: dict, args: dict) -> str:
         text += w.t("decision.changes", items="; ".join(parts))
     else:
         text += w.t("decision.nothing")
+    # the reason's first sentences only: the whole rendering goes beside the answer (the reply's `detail`, one click
+    # away on the page), as a colleague leads with the reason and keeps the derivation for who asks
     if r.get("reasons") and r.get("reasons_source") == "rendered":  # the cabinet asked about, not the published one
         text += w.t("decision.reasons", entity=w.entity(r["reasons_for"]),
-                    quote=w.quote(r["reasons"], f"the reasons for {r['reasons_for']}"))  # fmt: skip
+                    quote=w.quote(lead(r["reasons"]), f"the reasons for {r['reasons_for']}"))  # fmt: skip
     elif r.get("reasons"):  # plain sentences for a chat, never raw markdown
-        text += w.t("decision.explanation", quote=w.quote(r["reasons"], "the published explanation"))
+        text += w.t("decision.explanation", quote=w.quote(lead(r["reasons"]), "the published explanation"))
     return w.say(text)
+
+
+LEAD_CHARS = 320  # a "why" answer quotes its reason up to about this long (two sentences, most often)
+_SENTENCE_END = re.compile(r"(?<=[.!?])\s+(?=[A-ZÁÉÍÓÚÄÖÜ¿¡])")
+
+
+def lead(text: str, sentences: int = 2, max_chars: int = LEAD_CHARS) -> str:
+    """The first `sentences` sentences of `text` (at most `max_chars`, cut at a word with "…"); all of it if short."""
+    text = " ".join(text.split())
+    parts = _SENTENCE_END.split(text)
+    out = " ".join(parts[:sentences])
+    if len(out) > max_chars:
+        out = out[:max_chars].rsplit(" ", 1)[0].rstrip(",;:") + " …"
+    elif len(parts) > sentences:
+        out += " …"
+    return out
 
 
 def _controller(w: Writer, r: dict, args: dict) -> str:

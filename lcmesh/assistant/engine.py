@@ -23,17 +23,21 @@ from __future__ import annotations
 
 import logging
 import re
+import threading
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 from typing import Any
 
-from lcmesh.mesh.agents.ui import writer
-from lcmesh.mesh.agents.ui.sources import ChatSources, NotReady
-from lcmesh.mesh.agents.ui.facts import ChatFact, FactBook, fact, numbers_in, ungrounded_numbers
+from lcmesh.assistant import write as writer
+from lcmesh.assistant.sources import ChatSources, NotReady
+from lcmesh.assistant.facts import ChatFact, FactBook, fact, numbers_in, ungrounded_numbers
 from lcmesh.mesh.agents.ui.gateway import MeshRefused, MeshUnavailable
-from lcmesh.mesh.agents.ui.language import detect_language, phrase
-from lcmesh.mesh.agents.ui.phrasing import Phraser, TemplatePhraser
-from lcmesh.mesh.agents.ui.planner import Plan, RulePlanner, ToolCall
+from lcmesh.assistant.language import detect_language, phrase
+from lcmesh.assistant.phrasing import Phraser, TemplatePhraser
+from lcmesh.assistant.plan import Plan, RulePlanner, ToolCall
+from lcmesh.assistant.check import unanswered
+from lcmesh.assistant.query import Query
+from lcmesh.assistant.understand import LlmReader, RuleReader, query_of
 from lcmesh.mesh.ratelimit import RateLimited
 from lcmesh.mesh.tools import registry, semantic
 from lcmesh.mesh.tools.claims import Claim, Fact
@@ -43,7 +47,7 @@ from lcmesh.mesh.tools.vocab import (
 )  # fmt: skip
 from lcmesh.mesh.tools.plant_data import PLANT_TOOLS
 
-log = logging.getLogger("lcmesh.mesh.agents.ui")
+log = logging.getLogger("lcmesh.assistant")
 MAX_CALLS = 4  # a multi-part question; more is a planner gone astray
 CAN_DO = phrase("en", "can_do")  # every language's wording: ui/language.py
 REFUSAL = writer.refusal("en")
@@ -321,14 +325,55 @@ def uncovered(question: str, calls: list[ToolCall], facts: list[ChatFact] = ()) 
     return missing
 
 
+SESSION_S = 900.0  # a chat session's previous question is forgotten after this long without a question
+MAX_SESSIONS = 512  # the oldest session is dropped beyond this many
+
+
+class Sessions:
+    """The previous Query of each chat session: bounded (least recently asked dropped first) and expiring."""
+
+    def __init__(self, ttl_s: float = SESSION_S, max_sessions: int = MAX_SESSIONS, clock: Any = time.monotonic):
+        self.ttl_s, self.max_sessions, self.clock = ttl_s, max_sessions, clock
+        self._items: OrderedDict[str, tuple[float, Query]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, session: str) -> Query | None:
+        with self._lock:
+            item = self._items.get(session)
+            if item is None:
+                return None
+            if self.clock() - item[0] > self.ttl_s:
+                del self._items[session]
+                return None
+            return item[1]
+
+    def put(self, session: str, query: Query) -> None:
+        with self._lock:
+            self._items.pop(session, None)
+            self._items[session] = (self.clock(), query)
+            while len(self._items) > self.max_sessions:
+                self._items.popitem(last=False)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
 class ChatEngine:
     """Answers operator questions through tools; counts plans, fallbacks, refusals, guard failures, latency."""
 
     def __init__(self, sources: ChatSources, phraser: Phraser | None = None, planner: Any = None,
-                 runner: ToolRunner | None = None):  # fmt: skip
+                 runner: ToolRunner | None = None, session_s: float = SESSION_S,
+                 clock: Any = time.monotonic, check: str = "query"):  # fmt: skip
+        """``check``: "query" (the default): a plan the local model read is checked against its Query's fields
+        only (``check.unanswered``), with no second reading of the question's words; "words": every plan is also
+        checked against the question's words and may be replaced by the rules' (``uncovered``,
+        ``second_opinion``). Plans of the rules and of an endpoint get the word check either way."""
+        if check not in ("query", "words"):
+            raise ValueError(f"`check` must be 'query' or 'words', got {check!r}")
+        self.check = check
         self.sources = sources
         self.phraser = phraser or TemplatePhraser()
-        self.planner = planner or RulePlanner()
+        self.planner = planner or RuleReader()
         self.runner = runner or ToolRunner(sources)
         self.intents: Counter = Counter()  # tool calls by name ("refuse" for none)
         self.planned_by: Counter = Counter()
@@ -339,16 +384,42 @@ class ChatEngine:
         self._rules = RulePlanner()
         self.not_ready = 0
         self.latency_s: list[float] = []
+        self.sessions = Sessions(session_s, clock=clock)
 
-    def ask(self, message: str) -> dict[str, Any]:
-        """The answer to `message`; NotReady (HTTP 503) when the data it needs is not there yet."""
+    def ask(self, message: str, session: str | None = None) -> dict[str, Any]:
+        """The answer to `message`; NotReady (HTTP 503) when the data it needs is not there yet.
+
+        With a `session`, a follow-up ("and cabinet 2?", "why?") reads the session's previous question's Query.
+        """
         t0 = time.perf_counter()
-        plan = self.second_opinion(message, self.planner.plan(message))
+        previous = self.sessions.get(session) if session else None
+        plan = self.read(message, previous)
+        read_once = self.check == "query" and plan.by == "llm"
+        if not (plan.query is not None and plan.query.follow_up) and not read_once:
+            plan = self.second_opinion(message, plan)
+            if plan.query is None:  # the rules' plan stood in: its reading
+                plan.query = query_of(plan.calls, message)
         reply = self.answer(message, plan)
+        if session and plan.query is not None and plan.query.asks:
+            self.sessions.put(session, plan.query)
         elapsed = time.perf_counter() - t0
         self.latency_s.append(elapsed)
         del self.latency_s[:-1000]
-        return {**reply, "elapsed_ms": round(elapsed * 1e3, 2)}
+        return {**reply, "elapsed_ms": round(elapsed * 1e3, 2), "session": session}
+
+    def read(self, message: str, previous: Query | None) -> Plan:
+        """The planner's reading of `message` (a follow-up of `previous` where the planner reads Queries), its Query
+        filled in from its calls where the planner wrote calls only."""
+        if isinstance(self.planner, (LlmReader, RuleReader)):
+            plan = self.planner.plan(message, previous)
+        else:
+            plan = self.planner.plan(message)
+        if plan.query is None:
+            try:
+                plan.query = query_of(plan.calls, message)
+            except (KeyError, ValueError):
+                plan.query = None
+        return plan
 
     def second_opinion(self, message: str, plan: Plan) -> Plan:
         """The rules' plan instead of a model's that leaves out something the question names and the rules cover.
@@ -359,7 +430,7 @@ class ChatEngine:
         if plan.calls and OUT_OF_SCOPE.search(message):
             self.second_opinions += 1
             return Plan([], plan.by, f"“{OUT_OF_SCOPE.search(message).group(0)}” is nothing the tools know")
-        if plan.by == "rules" or isinstance(self.planner, RulePlanner):
+        if plan.by == "rules" or isinstance(self.planner, (RulePlanner, RuleReader)):
             return plan
         if not plan.calls:  # the model found nothing to call: the rules' plan, if they have one, is worth a try
             alternative = self._rules.plan(message)
@@ -385,7 +456,7 @@ class ChatEngine:
             self.intents["refuse"] += 1
             return self._reply(writer.refusal(lang), [], plan, refused=True, grounded=False, lang=lang)
         book = FactBook()
-        parts, proposed, failed = [], None, False
+        parts, proposed, failed, details = [], None, False, []
         for k, call in enumerate(calls):
             self.intents[call.tool] += 1
             result = self.runner(call)
@@ -405,6 +476,8 @@ class ChatEngine:
                 parts.append(_tool_error(book, call, f"could not write the {call.tool} result ({type(exc).__name__})",
                                          k, lang))
                 continue
+            if call.tool == "decision" and result.result.get("reasons"):  # the whole reasoning, one click away
+                details.append({"title": result.result.get("what") or "decision", "text": result.result["reasons"]})
             if call.tool == "propose_change":
                 proposed = _proposal(result.result) or proposed
             elif call.tool == "whatif_setpoint" and proposed is None:  # the change it tried, ready to confirm
@@ -412,7 +485,10 @@ class ChatEngine:
         draft = " ".join(parts)
         facts = book.listed()
         problems = check_answer(draft, facts)
-        missing = uncovered(message, calls, facts)
+        if self.check == "query" and plan.by == "llm" and plan.query is not None:
+            missing = unanswered(plan.query, facts, errors=failed)  # the model's reading is the one reading
+        else:
+            missing = uncovered(message, calls, facts)
         if missing:  # a true answer to another question is not an answer: say so, and offer what was found
             self.uncovered += 1
             plan = Plan(plan.calls, plan.by, "; ".join(x for x in (plan.note, "the plan may not answer what the "
@@ -421,7 +497,7 @@ class ChatEngine:
                 self.ungrounded += 1
                 log.error("chat draft for %r fails the semantic guard: %s", message, problems)
             return self._reply(decline(lang, missing, draft), facts, plan, proposed=proposed, grounded=False,
-                               problems=problems, lang=lang, declined=missing)  # fmt: skip
+                               problems=problems, lang=lang, declined=missing, details=details)  # fmt: skip
         if problems:
             self.ungrounded += 1
             log.error("chat draft for %r fails the semantic guard: %s", message, problems)
@@ -433,7 +509,7 @@ class ChatEngine:
                 self.rejected_phrasings += 1
                 text, by, note = draft, "template", f"rephrasing refused: {rephrased_problems[0].flag.detail}"
         return self._reply(text, facts, plan, proposed=proposed, grounded=not (problems or failed),
-                           phrased_by=by, note=note, problems=problems, lang=lang)  # fmt: skip
+                           phrased_by=by, note=note, problems=problems, lang=lang, details=details)  # fmt: skip
 
     def _whatif_proposal(self, args: dict) -> dict | None:
         """The proposed command that would apply a what-if's change (None when it is outside the limits)."""
@@ -444,7 +520,8 @@ class ChatEngine:
 
     def _reply(self, text: str, facts: list[ChatFact], plan: Plan, *, refused: bool = False, grounded: bool,
                proposed: dict | None = None, phrased_by: str = "template", note: str | None = None,
-               problems: list | None = None, lang: str = "en", declined: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
+               problems: list | None = None, lang: str = "en", declined: list[str] | None = None,
+               details: list[dict] | None = None) -> dict[str, Any]:  # fmt: skip
         return {
             "answer": text,
             "facts": [f.model_dump() for f in facts],
@@ -462,6 +539,9 @@ class ChatEngine:
             "problems": [{"kind": p.flag.kind, "span": p.text, "detail": p.flag.detail} for p in problems or []
                          if p.flag is not None],
             "lang": lang,
+            "query": plan.query.model_dump(exclude_none=True) if plan.query is not None else None,
+            "follow_up": bool(plan.query is not None and plan.query.follow_up),
+            "detail": list(details or []),
         }
 
 
