@@ -125,9 +125,11 @@ def parse_query(text: str) -> Query:
 
 
 def resolve_follow_up(query: Query, previous: Query | None) -> Query:
-    """A follow-up's asks completed from the previous turn's (still marked ``follow_up``: it was read as one): each of its fields replaces the previous ask's (the
-    entities of one kind replace all entities: "and tower 2?" after a cabinet question asks about tower 2). A
-    follow-up with no previous turn, or a query that is not one, is returned as it is."""
+    """A follow-up's asks completed from the previous turn's (still marked ``follow_up``: it was read as one).
+
+    Each of its fields replaces the previous ask's; entities of one kind replace all entities ("and tower 2?"
+    after a cabinet question asks about tower 2); another kind of ask keeps only the quantity, entities and
+    window. A follow-up with no previous turn, or a query that is not one, is returned as it is."""
     if not query.follow_up or previous is None or not previous.asks:
         return query
     base = previous.asks[0]

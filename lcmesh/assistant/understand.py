@@ -15,12 +15,10 @@ from __future__ import annotations
 
 import re
 import threading
-import time
 from string import Template
 
 from pydantic import ValidationError
 
-from lcmesh.assistant.intents import classify
 from lcmesh.assistant.language import detect_language
 from lcmesh.assistant.plan import LlmPlanner, Plan, PlanError, RulePlanner, ToolCall
 from lcmesh.assistant.query import Ask, Query, parse_query, query_schema, resolve_follow_up
@@ -161,4 +159,4 @@ def reads_queries(adapter) -> bool:
         return False
 
 
-__all__ = ["LlmReader", "RuleReader", "calls_of", "query_of", "read_messages", "reads_queries", "time"]
+__all__ = ["LlmReader", "RuleReader", "calls_of", "query_of", "read_messages", "reads_queries"]

@@ -324,9 +324,9 @@ def markdown(report: dict[str, Any]) -> str:
                      + " | ".join(f"{s['correct']:.1%} ({yes(s['correct'] >= TARGETS['correct'])})" for s in parts)
                      + " |")  # fmt: skip
         for lang in ("es", "de", "fr"):
+            shares = [s.get("by_lang", {}).get(lang) for s in parts]
             lines.append(f"| {lang} answers right >= {TARGETS['lang']:.0%} | " + " | ".join(
-                f"{s['by_lang'][lang]:.1%} ({yes(s['by_lang'][lang] >= TARGETS['lang'])})" if lang in s.get("by_lang", {})
-                else "-" for s in parts) + " |")  # fmt: skip
+                "-" if v is None else f"{v:.1%} ({yes(v >= TARGETS['lang'])})" for v in shares) + " |")
         lines.append("| wrong but grounded = 0 | " + " | ".join(
             f"{s['wrong_but_grounded']} ({yes(s['wrong_but_grounded'] == 0)})" for s in parts) + " |")
         share = TARGETS["declined_holding_answer"]

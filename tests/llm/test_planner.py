@@ -10,8 +10,9 @@ import pytest
 
 from lcmesh.distill.planner_data import CATEGORIES, canonical_calls, generate, typo
 from lcmesh.llm.base import LlmBackendSettings
+from lcmesh.assistant.understand import LlmReader
 from lcmesh.assistant.plan import (
-    PLANNER_ADAPTER, PLANNER_TOOLS, LlmPlanner, OpenAiPlanner, PlanError, RulePlanner, ToolCall, make_planner,
+    PLANNER_ADAPTER, PLANNER_TOOLS, OpenAiPlanner, PlanError, RulePlanner, ToolCall, make_planner,
     openai_tools, parse_plan, plan_text, same_plan,
 )  # fmt: skip
 from tests.llm.conftest import ForwardClock, frozen_clock
@@ -213,7 +214,7 @@ def planner_backend(local_model_dir):
 
 
 def test_the_shipped_adapter_plans_generated_questions(planner_backend):
-    planner = LlmPlanner(backend=planner_backend.with_clock(frozen_clock))
+    planner = LlmReader(backend=planner_backend.with_clock(frozen_clock))
     samples = [s for s in generate(40, seed=4242) if s.category in ("state", "rank", "alerts", "refusal", "change")]
     samples = samples[:4]  # as on llama.cpp below: the benchmark measures the rate on held-out questions
     exact = 0
@@ -226,7 +227,7 @@ def test_the_shipped_adapter_plans_generated_questions(planner_backend):
 
 
 def test_output_cut_to_one_token_falls_back_to_the_rules_and_is_counted(planner_backend):
-    planner = LlmPlanner(backend=planner_backend.with_clock(frozen_clock), max_new_tokens=1)
+    planner = LlmReader(backend=planner_backend.with_clock(frozen_clock), max_new_tokens=1)
     plan = planner.plan("which cabinet runs hottest?")
     assert plan.by == "rules" and plan.note.startswith("llm output invalid:")
     assert calls_of(plan) == [("rank", {"quantity": "blade_temp", "order": "highest"})]
@@ -235,7 +236,7 @@ def test_output_cut_to_one_token_falls_back_to_the_rules_and_is_counted(planner_
 
 def test_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeout(planner_backend):
     clock = ForwardClock(per_token_s=1e-3)
-    planner = LlmPlanner(backend=planner_backend.with_clock(clock, seconds_per_token=1e-3), time_budget_s=0.05)
+    planner = LlmReader(backend=planner_backend.with_clock(clock, seconds_per_token=1e-3), time_budget_s=0.05)
     with clock.driving(planner_backend.model):
         plan = planner.plan("any alerts?")
     assert plan.by == "rules" and plan.note.startswith("llm output invalid: timeout")
@@ -268,19 +269,30 @@ def llama_planner_backend():
 
 
 def test_on_llama_cpp_the_shipped_adapter_plans_generated_questions(llama_planner_backend):
-    planner = LlmPlanner(backend=llama_planner_backend.with_clock(frozen_clock))
+    planner = LlmReader(backend=llama_planner_backend.with_clock(frozen_clock))
     samples = [s for s in generate(40, seed=4242) if s.category in ("state", "rank", "alerts", "refusal", "change")]
     exact = 0
     for s in samples[:4]:
         plan = planner.plan(s.question)
-        assert plan.by == "llm", (s.question, plan.note)  # decoded under the plan's JSON schema, every call validated
+        assert plan.by == "llm", (s.question, plan.note)  # decoded under the Query's JSON schema, calls validated
+        assert plan.query is not None and plan.query.model_dump()  # the typed reading comes with the calls
         exact += same_plan(plan.calls, [ToolCall(c["tool"], c["args"]) for c in s.calls])
     assert exact >= 3 and planner.fallbacks == 0
 
 
+def test_on_llama_cpp_the_reader_reads_other_languages_and_follow_ups(llama_planner_backend):
+    planner = LlmReader(backend=llama_planner_backend.with_clock(frozen_clock))
+    first = planner.plan("Wie hoch ist die Vorlauftemperatur von Schrank 3?")
+    assert first.by == "llm" and first.query.lang == "de", first.note
+    assert first.calls == [ToolCall("plant_state", {"quantity": "supply_temp", "cabinet": 3})]
+    follow = planner.plan("and cabinet 2?", first.query)
+    assert follow.by == "llm" and follow.query.follow_up, follow.note
+    assert follow.calls == [ToolCall("plant_state", {"quantity": "supply_temp", "cabinet": 2})]
+
+
 def test_on_llama_cpp_a_budget_shorter_than_the_prompt_pass_falls_back_as_timeout(llama_planner_backend):
     ticks = iter(float(t) for t in range(0, 1000))  # every reading of the clock: one second later
-    planner = LlmPlanner(backend=llama_planner_backend.with_clock(lambda: next(ticks)), time_budget_s=0.5)
+    planner = LlmReader(backend=llama_planner_backend.with_clock(lambda: next(ticks)), time_budget_s=0.5)
     plan = planner.plan("any alerts?")
     assert plan.by == "rules" and plan.note.startswith("llm output invalid: timeout")
     assert planner.fallback_reasons == {"timeout": 1}

@@ -10,7 +10,7 @@ from lcmesh.distill.ppo_env import Travel, step_rewards
 from lcmesh.mesh.tools.guardrails import GuardrailLimits
 from lcmesh.twin.controllers import make_controller
 from lcmesh.twin.controllers.guarded import Guarded, applied_action, guard
-from lcmesh.twin.plant import Plant, PlantAction
+from lcmesh.twin.plant import Plant
 from lcmesh.twin.run import run_twin
 from lcmesh.twin.traces import load_trace
 
