@@ -152,5 +152,11 @@ def query_schema() -> dict:
     """The JSON schema the local model's reading is decoded under (llama.cpp's grammar)."""
     from lcmesh.assistant.plan import _grammar_node  # noqa: PLC0415
 
+    from lcmesh.twin.controllers import REGISTRY
+
     full = Query.model_json_schema()
-    return _grammar_node(full, full.get("$defs", {}))
+    schema = _grammar_node(full, full.get("$defs", {}))
+    # a controller is one the registry names (the mesh refuses any other): the model picks among them, it does
+    # not spell one ("switch to manual" is a mode, not a controller called "manual")
+    schema["properties"]["asks"]["items"]["properties"]["controller"] = {"enum": sorted(REGISTRY)}
+    return schema

@@ -368,7 +368,7 @@ def part_name(question_set: str, split: str) -> str:
     return split if question_set == "a" else f"{question_set}-{split}"
 
 
-def run_part(planner: str, question_set: str, split: str, site: str, check: str = "query") -> dict:
+def run_part(planner: str, question_set: str, split: str, site: str, check: str = "words") -> dict:
     """One unit of ``lcmesh bench chat``: ``planner`` (llm, rules, openai; oracle: the expected calls) on one part's
     questions, on the recorded ``site``; the part's summary."""
     from lcmesh.assistant.plan import make_planner
@@ -382,7 +382,7 @@ def run_part(planner: str, question_set: str, split: str, site: str, check: str 
     return summarize(run_split(questions, engine, run_tool))
 
 
-def part_units(planners: Iterable[str], parts: Iterable[tuple[str, str]], site: Path, check: str = "query") -> list:
+def part_units(planners: Iterable[str], parts: Iterable[tuple[str, str]], site: Path, check: str = "words") -> list:
     """One engine unit per (planner, part); the key holds the assistant's code, the planner's model and adapter, the
     question files and the recorded site."""
     from lcmesh.bench.engine import Unit, tree_digest
@@ -396,7 +396,7 @@ def part_units(planners: Iterable[str], parts: Iterable[tuple[str, str]], site: 
             for name in planners for qs, sp in parts]  # fmt: skip
 
 
-def bench_engine(sources: Any, planner: Any, run_tool: Callable, check: str = "query") -> Any:
+def bench_engine(sources: Any, planner: Any, run_tool: Callable, check: str = "words") -> Any:
     """A chat engine on the site's sources whose what-ifs run on the site's restored plant."""
     from lcmesh.assistant.engine import ChatEngine, ToolRunner
 

@@ -33,9 +33,9 @@ def bench_chat(
                                         "controller's count of who decided", min=0, max=600)] = 0.0,
     explainer: Annotated[Optional[str], typer.Option(help="--live: 'llm': the Control agent explains with the LLM "
                                                      "(its count of who wrote them is reported)")] = None,
-    check: Annotated[str, typer.Option(help="query: the model's reading is checked against its own fields (the "
-                                       "default, as the mesh runs); words: every plan also against the question's "
-                                       "words, replaced by the rules' where they cover more")] = "query",
+    check: Annotated[str, typer.Option(help="words (the default, as the mesh runs): every plan is also checked "
+                                       "against the question's words, replaced by the rules' where they cover "
+                                       "more; query: the model's reading against its own fields only")] = "words",
     engine=None,
 ) -> None:
     """Tool-call accuracy, answers right against state, refusals, wrong-but-grounded and latency per planner."""

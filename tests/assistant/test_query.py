@@ -77,6 +77,7 @@ def test_the_schema_the_model_writes_under_lists_every_ask_kind_and_forbids_stra
     ask = schema["properties"]["asks"]["items"]
     assert set(ask["properties"]["ask"]["enum"]) == {t.ask for t in SPECS.values()}
     assert ask["additionalProperties"] is False and schema["additionalProperties"] is False
+    assert "g36" in ask["properties"]["controller"]["enum"] and "manual" not in ask["properties"]["controller"]["enum"]
     with pytest.raises(ValueError):
         parse_query('{"asks": [{"ask": "value", "colour": "red"}]}')
     with pytest.raises(ValueError, match="JSON"):
@@ -148,3 +149,28 @@ def test_a_follow_up_in_a_chat_session_reads_the_previous_question(tmp_path):
         assert follow["plan"] == [{"tool": "plant_state", "args": {"quantity": "supply_temp", "cabinet": 2}}]
         other = engine.ask("and cabinet 2?", session="b")  # another session has no previous question
         assert not other["follow_up"]
+
+
+def test_the_check_names_an_entity_asked_that_no_fact_is_about():
+    from lcmesh.assistant.check import unanswered
+    from lcmesh.assistant.facts import fact
+
+    query = Query(asks=[Ask(ask="value", quantity="supply_temp", cabinets=[3]), Ask(ask="value", towers=[2])])
+    facts = [fact("a", 27.1, "degC", "supply of cabinet 3", "state", entity="cabinet 3", quantity="supply_temp"),
+             fact("b", 0.4, "", "valve", "state", entity="branch 2 of cabinet 3", quantity="valve")]
+    assert unanswered(query, facts) == ["tower 2"]
+    assert unanswered(query, facts, errors=True) == []  # a tool said why not: the answer quotes it
+    branch = Query(asks=[Ask(ask="value", quantity="valve", cabinets=[3], branches=[2])])
+    assert unanswered(branch, facts) == []
+    command = Query(asks=[Ask(ask="command", setpoint="supply", change=1, unit="K", cabinets=[4])])
+    assert unanswered(command, []) == []
+
+
+def test_a_why_answer_quotes_the_reasons_first_sentences():
+    from lcmesh.assistant.write import LEAD_CHARS, lead
+
+    text = "Cabinet 3 ran hot at 41.2 °C. The supply setpoint was lowered by 1 K. Then the valve opened."
+    assert lead(text) == "Cabinet 3 ran hot at 41.2 °C. The supply setpoint was lowered by 1 K. …"
+    assert lead("One sentence only.") == "One sentence only."
+    long = "word " * 200
+    assert len(lead(long)) <= LEAD_CHARS + 2 and lead(long).endswith("…")

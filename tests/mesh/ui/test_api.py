@@ -187,6 +187,19 @@ def test_chat_contract_and_input_errors(api):
     assert r.status_code == 413
 
 
+def test_chat_follow_ups_read_the_previous_question_of_their_session(api):
+    first = api.post("/api/chat", json={"message": "what is the supply temperature of cabinet 4?", "session": "s-1"})
+    assert first.status_code == 200 and first.json()["query"]["asks"][0]["quantity"] == "supply_temp", first.json()
+    follow = api.post("/api/chat", json={"message": "and cabinet 2?", "session": "s-1"}).json()
+    assert follow["follow_up"] and follow["session"] == "s-1", follow
+    assert follow["plan"] == [{"tool": "plant_state", "args": {"quantity": "supply_temp", "cabinet": 2}}]
+    assert follow["grounded"] and "cabinet 2" in follow["answer"]
+    alone = api.post("/api/chat", json={"message": "and cabinet 2?", "session": "s-2"}).json()
+    assert not alone["follow_up"]  # another session: nothing to continue
+    r = api.post("/api/chat", json={"message": "and cabinet 2?", "session": "../etc"})
+    assert r.status_code == 422 and "session" in r.text
+
+
 def test_chat_proposes_commands_and_never_applies_them(api):
     before = api.get("/api/config").json()["version"]
     body = api.post("/api/chat", json={"message": "set the supply setpoint of cabinet 3 to 29 °C"}).json()

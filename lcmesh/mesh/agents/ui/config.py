@@ -35,10 +35,10 @@ class UiSettings(BaseSettings):
     chat_rate_per_min: float = Field(30.0, gt=0, le=100_000, description="chat requests per minute and client")
     chat_burst: int = Field(10, ge=1, le=100_000, description="chat requests a client may send at once")
     chat_max_chars: int = Field(500, ge=10, le=10_000)
-    chat_check: Literal["query", "words"] = Field("query", description="query: the local model's reading is "
-                                                  "checked against its own fields; words: also against the "
-                                                  "question's words, the rules' plan replacing it where it covers "
-                                                  "more (docs/ui.md)")
+    chat_check: Literal["query", "words"] = Field("words", description="words: the local model's reading is also "
+                                                  "checked against the question's words, the rules' plan replacing "
+                                                  "it where it covers more; query: against its own fields only "
+                                                  "(docs/ui.md)")
     chat_session_s: float = Field(900.0, gt=0, le=86_400, description="a chat session's previous question is "
                                   "forgotten after this many seconds without a question (follow-ups read it)")
     planner: Literal["llm", "openai", "rules"] = Field(

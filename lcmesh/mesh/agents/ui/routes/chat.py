@@ -29,7 +29,9 @@ def chat(request: Request, body: ChatQuestion) -> dict:
     if wait_s > 0:
         raise HTTPException(429, f"too many chat questions from {client}; retry in {wait_s:.1f} s",
                             headers={"Retry-After": str(math.ceil(wait_s))})  # fmt: skip
-    return stamp_proposal(ctx.chat.ask(body.message, session=body.session and f"{client}/{body.session}"), ctx)
+    # a session is the client's own: its id is kept per client address, and answered as the client sent it
+    reply = ctx.chat.ask(body.message, session=body.session and f"{client}/{body.session}")
+    return stamp_proposal({**reply, "session": body.session}, ctx)
 
 
 def stamp_proposal(reply: dict, ctx) -> dict:
