@@ -325,6 +325,15 @@ def uncovered(question: str, calls: list[ToolCall], facts: list[ChatFact] = ()) 
     return missing
 
 
+def reading_of(calls: list[ToolCall], message: str) -> Query | None:
+    """The Query of a plan written as calls (an endpoint's, the rules'), or None when a call is to a tool the
+    assistant's specs do not hold (a physics tool an endpoint may know) or does not validate."""
+    try:
+        return query_of(calls, message)
+    except (KeyError, ValueError):
+        return None
+
+
 SESSION_S = 900.0  # a chat session's previous question is forgotten after this long without a question
 MAX_SESSIONS = 512  # the oldest session is dropped beyond this many
 
@@ -399,7 +408,7 @@ class ChatEngine:
         if not (plan.query is not None and plan.query.follow_up) and not read_once:
             plan = self.second_opinion(message, plan)
             if plan.query is None:  # the rules' plan stood in: its reading
-                plan.query = query_of(plan.calls, message)
+                plan.query = reading_of(plan.calls, message)
         reply = self.answer(message, plan)
         if session and plan.query is not None and plan.query.asks:
             self.sessions.put(session, plan.query)
@@ -416,10 +425,7 @@ class ChatEngine:
         else:
             plan = self.planner.plan(message)
         if plan.query is None:
-            try:
-                plan.query = query_of(plan.calls, message)
-            except (KeyError, ValueError):
-                plan.query = None
+            plan.query = reading_of(plan.calls, message)
         return plan
 
     def second_opinion(self, message: str, plan: Plan) -> Plan:
