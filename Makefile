@@ -22,9 +22,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q torch==2.13.0
 	# llama.cpp, the CPU serving runtime (docs/llm.md): built from its sdist once (about 12 min on 2 cores; the wheel
 	# is kept in LLAMA_WHEELS, so a later setup takes seconds); only the library, no tools or server
-	test -n "$$(ls $(LLAMA_WHEELS)/*.whl 2>/dev/null)" || CMAKE_BUILD_PARALLEL_LEVEL=$$(nproc) \
-		CMAKE_ARGS="$(LLAMA_CMAKE_ARGS)" $(PY) -m pip wheel -q --no-deps --no-cache-dir -w $(LLAMA_WHEELS).tmp \
-		llama-cpp-python==0.3.36 && mv $(LLAMA_WHEELS).tmp $(LLAMA_WHEELS)
+	test -n "$$(ls $(LLAMA_WHEELS)/*.whl 2>/dev/null)" || { rm -rf $(LLAMA_WHEELS).tmp && \
+		CMAKE_BUILD_PARALLEL_LEVEL=$$(nproc) CMAKE_ARGS="$(LLAMA_CMAKE_ARGS)" $(PY) -m pip wheel -q --no-deps \
+		--no-cache-dir -w $(LLAMA_WHEELS).tmp llama-cpp-python==0.3.36 && mv $(LLAMA_WHEELS).tmp $(LLAMA_WHEELS); }
 	$(PY) -m pip install -q --force-reinstall --no-deps $(LLAMA_WHEELS)/*.whl
 	$(PY) -m pip install -q llama-cpp-python==0.3.36
 	$(PY) -m pip install -q -e '.[test]'
