@@ -763,7 +763,6 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
     """Generate the data, train the adapter, score it and the rules on the dev sample; returns the manifest."""
     from dataclasses import asdict
 
-    from lcmesh.distill.llm import _plot_losses
     from lcmesh.distill.ppo import git_commit
     from lcmesh.llm.model_cache import SMOLLM2_GGUF
 
@@ -794,28 +793,39 @@ def distill_planner(cfg: PlannerDistillConfig, progress: Progress | None = None)
                  "dev_seed": cfg.seed + DEV_SEED_OFFSET, "dev_questions_not_in_train": dev_unseen},
         "command": _command(),
         "commit": git_commit(),
-        "metrics": {
-            "train": train_metrics(result),
-            "dev_llm": llm, "dev_rules": rules, "dev_note": "generator dev sample (in-distribution), not the "
-                                                             "hand-written chat benchmark",
-        },
-        "seconds": time.perf_counter() - t_start,
-        "adapter_bytes": adapter_file.stat().st_size,
     })  # fmt: skip
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float) + "\n")
-    _plot_losses(result.losses, out / "loss.png")
-    return manifest
+    return finish_manifest(out, manifest, result, adapter_file, t_start, llm, rules,
+                           "generator dev sample (in-distribution), not the hand-written chat benchmark")
 
 
 def score_dev(adapter: Path, dev: list[PlannerSample], threads: int, say: Progress) -> tuple[dict, dict]:
     """The adapter's and the rules' figures on the dev sample (no time budget: latency is measured, not capped)."""
-    from lcmesh.llm.hf.backend import HfBackend
-    from lcmesh.llm.model_cache import resolve_model
     from lcmesh.assistant.plan import LlmPlanner, RulePlanner
 
+    return score_adapter(adapter, threads, LlmPlanner, RulePlanner(), evaluate_planner, dev, say, "the dev sample")
+
+
+def score_adapter(adapter: Path, threads: int, llm_cls, rules, evaluate, dev: list, say: Progress,
+                  what: str) -> tuple[dict, dict]:  # fmt: skip
+    """(the adapter's figures, the rules') on `dev` by `evaluate`, the adapter on the HF backend, no time budget."""
+    from lcmesh.llm.hf.backend import HfBackend
+    from lcmesh.llm.model_cache import resolve_model
+
     backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=adapter, dtype="bfloat16", threads=threads)
-    llm = evaluate_planner(LlmPlanner(backend=backend, time_budget_s=None), dev, say, "scoring the dev sample (llm)")
-    return llm, evaluate_planner(RulePlanner(), dev, say, "scoring the dev sample (rules)")
+    llm = evaluate(llm_cls(backend=backend, time_budget_s=None), dev, say, f"scoring {what} (llm)")
+    return llm, evaluate(rules, dev, say, f"scoring {what} (rules)")
+
+
+def finish_manifest(out: Path, manifest: dict, result, adapter_file: Path, t_start: float, llm: dict, rules: dict,
+                    note: str) -> dict:  # fmt: skip
+    """The manifest with the training and dev figures, written with the loss plot; returned."""
+    from lcmesh.distill.llm import _plot_losses
+
+    manifest.update({"metrics": {"train": train_metrics(result), "dev_llm": llm, "dev_rules": rules, "dev_note": note},
+                     "seconds": time.perf_counter() - t_start, "adapter_bytes": adapter_file.stat().st_size})
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float) + "\n")
+    _plot_losses(result.losses, out / "loss.png")
+    return manifest
 
 
 def rescore(out: Path, cfg: PlannerDistillConfig, say: Progress) -> dict:
@@ -896,7 +906,6 @@ def distill_reader(cfg: PlannerDistillConfig, out: Path, say: Progress, t_start:
     from dataclasses import asdict
 
     from lcmesh.assistant.understand import read_messages
-    from lcmesh.distill.llm import _plot_losses
     from lcmesh.distill.ppo import git_commit
     from lcmesh.llm.model_cache import SMOLLM2_GGUF
 
@@ -921,28 +930,16 @@ def distill_reader(cfg: PlannerDistillConfig, out: Path, say: Progress, t_start:
                  "written by other authors and dropped from training where a question repeats one"},
         "command": _command(),
         "commit": git_commit(),
-        "metrics": {
-            "train": train_metrics(result),
-            "dev_llm": llm, "dev_rules": rules,
-            "dev_note": "a held-out slice of the training authors' pairs (in-distribution), not the benchmark",
-        },
-        "seconds": time.perf_counter() - t_start,
-        "adapter_bytes": adapter_file.stat().st_size,
     })  # fmt: skip
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float) + "\n")
-    _plot_losses(result.losses, out / "loss.png")
-    return manifest
+    return finish_manifest(out, manifest, result, adapter_file, t_start, llm, rules,
+                           "a held-out slice of the training authors' pairs (in-distribution), not the benchmark")
 
 
 def score_reader(adapter: Path, dev: list[ReaderSample], threads: int, say: Progress) -> tuple[dict, dict]:
     """The reader's and the rules' figures on the dev slice (no time budget: latency is measured, not capped)."""
     from lcmesh.assistant.understand import LlmReader, RuleReader
-    from lcmesh.llm.hf.backend import HfBackend
-    from lcmesh.llm.model_cache import resolve_model
 
-    backend = HfBackend(resolve_model("smollm2-135m-instruct"), adapter=adapter, dtype="bfloat16", threads=threads)
-    llm = evaluate_reader(LlmReader(backend=backend, time_budget_s=None), dev, say, "scoring the dev slice (llm)")
-    return llm, evaluate_reader(RuleReader(), dev, say, "scoring the dev slice (rules)")
+    return score_adapter(adapter, threads, LlmReader, RuleReader(), evaluate_reader, dev, say, "the dev slice")
 
 
 def train_adapter(cfg: PlannerDistillConfig, out: Path, pairs: list, say: Progress) -> tuple[Any, Path]:
