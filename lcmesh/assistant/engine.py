@@ -1,19 +1,22 @@
-"""The operator assistant: plan tool calls, run them, write the answer from their results, check it, send it.
+"""The operator assistant's engine: read the question, plan its calls, run them, write the answer, check it.
 
-``ChatEngine.ask(message)`` returns ``{"answer", "facts", "intent", "proposed_command", "phrased_by",
-"grounded", "elapsed_ms", "plan", "planned_by", "refused", "problems", "lang"}``, answered in the
-question's language (English, Spanish, German or French: ``language.detect_language``):
+``ChatEngine.ask(message, session=None)`` returns ``{"answer", "facts", "intent", "proposed_command",
+"phrased_by", "grounded", "elapsed_ms", "plan", "planned_by", "refused", "problems", "lang", "query",
+"follow_up", "session", "detail"}``, answered in the question's language (English, Spanish, German or French:
+``language.detect_language``):
 
-1. a planner (the local LLM with its planner adapter, any OpenAI-compatible endpoint, or the regex
-   rules as the counted fallback: ``planner.py``) turns the question into calls of the tool registry
-   the mesh serves on ``tools/*`` (``lcmesh.mesh.tools.registry``);
+1. a reader (``understand.py``: the local LLM under the Query's JSON schema, the rules as the counted
+   fallback) turns the question into one typed ``Query``; a follow-up in a chat session is completed from
+   the session's previous Query; the calls follow from its asks through the tool specs (``tools.py``); an
+   OpenAI-compatible endpoint's function calls are read back into a Query (``plan.py``);
 2. the tools compute: the data tools here, on the UI's live state and history; the what-if on the
    live twin, through the Sensor's queryable;
-3. ``writer.py`` writes the answer from the results only, every number a fact;
+3. ``write.py`` writes the answer from the results only, every number a fact;
 4. the semantic guard (``lcmesh.mesh.tools.semantic``) checks every number is bound to the right
    entity and quantity and every ranking and direction agrees with the results. An answer that
    fails is not sent as grounded: a rephrasing falls back to the written draft, a draft that fails
-   is a bug and is reported.
+   is a bug and is reported; then the answer is checked against what was asked (``check``: the
+   question's words, ``uncovered``, by default; or the Query's fields, ``check.unanswered``).
 
 A question no tool answers gets an honest "I can't tell that from here" and is never grounded. A
 request to change the plant comes back as a proposed command: chat never actuates.
