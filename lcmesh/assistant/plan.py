@@ -460,10 +460,14 @@ class _Fallbacks:
     def _fall_back(self, question: str, reason: str, detail: str, raw: str | None, t0: float) -> Plan:
         self.fallbacks += 1
         self.fallback_reasons[reason] += 1
-        plan = self.fallback.plan(question)
+        plan = self._fallback_plan(question)
         plan.note, plan.raw = f"llm output invalid: {reason}: {detail}"[:300], raw
         plan.seconds = self.clock() - t0
         return plan
+
+    def _fallback_plan(self, question: str) -> Plan:
+        """The fallback's plan of `question` (a reader's fallback also reads the session's previous question)."""
+        return self.fallback.plan(question)
 
     def stats_snapshot(self) -> dict:
         return {"plans": self.plans, "fallbacks": self.fallbacks, "fallback_reasons": dict(self.fallback_reasons),
@@ -663,9 +667,9 @@ def make_planner(kind: Literal["llm", "openai", "rules"] = "llm", **kwargs) -> P
     """The planner the UI settings name; ``kwargs`` go to its constructor (``settings=`` for openai)."""
     from lcmesh.assistant.understand import LlmReader, RuleReader, reads_queries
 
-    adapter = kwargs.get("adapter") or PLANNER_ADAPTER
-    llm = LlmReader if reads_queries(adapter) else LlmPlanner  # an adapter trained on tool-call lists still plans
-    planners = {"llm": llm, "openai": OpenAiPlanner, "rules": RuleReader}
+    planners = {"llm": LlmPlanner, "openai": OpenAiPlanner, "rules": RuleReader}
+    if kind == "llm" and reads_queries(kwargs.get("adapter") or PLANNER_ADAPTER):
+        planners["llm"] = LlmReader  # an adapter trained on tool-call lists (its manifest says so) still plans
     if kind not in planners:
         import difflib
 

@@ -8,6 +8,7 @@ Queries). ``PLANNER_TOOLS`` (name -> request model) is derived from ``SPECS``.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -154,7 +155,7 @@ def ask_for(tool: str, args: dict) -> Ask:
     spec = SPECS[tool]
     request = spec.request.model_validate(args)
     full = request.model_dump(mode="json")
-    defaults = spec.request().model_dump(mode="json") if _has_defaults(spec.request) else {}
+    defaults = _defaults(spec.request)
     fields = {k: v for k, v in spec.from_args(full).items() if v is not None}
     for key, value in list(fields.items()):  # a request default is not something the question said
         arg = _ARG_OF.get((tool, key), key)
@@ -167,9 +168,10 @@ _ARG_OF = {("energy_used", "energy"): "what", ("alerts", "top"): "limit", ("cont
            ("peak", "order"): "extreme"}  # fmt: skip
 
 
-def _has_defaults(model: type[BaseModel]) -> bool:
+@functools.cache
+def _defaults(model: type[BaseModel]) -> dict:
+    """A request model's arguments as it fills them with none given ({} when it needs some)."""
     try:
-        model()
-    except Exception:
-        return False
-    return True
+        return model().model_dump(mode="json")
+    except ValueError:  # pydantic's ValidationError: a required argument
+        return {}

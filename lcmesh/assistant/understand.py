@@ -138,13 +138,8 @@ class LlmReader(LlmPlanner):
         finally:
             self._turn.previous = None
 
-    def _fall_back(self, question: str, reason: str, detail: str, raw: str | None, t0: float) -> Plan:
-        self.fallbacks += 1
-        self.fallback_reasons[reason] += 1
-        plan = self.fallback.plan(question, getattr(self._turn, "previous", None))
-        plan.note, plan.raw = f"llm output invalid: {reason}: {detail}"[:300], raw
-        plan.seconds = self.clock() - t0
-        return plan
+    def _fallback_plan(self, question: str) -> Plan:
+        return self.fallback.plan(question, getattr(self._turn, "previous", None))
 
 
 def reads_queries(adapter) -> bool:

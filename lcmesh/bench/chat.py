@@ -229,13 +229,12 @@ def run_split(questions: list[Question], engine: Any, run_tool: Callable, *, clo
                       "planned_by": "?"}  # fmt: skip
         seconds = clock() - t0
         plan = Counter((c["tool"], canonical(c["tool"], c["args"])) for c in answer.get("plan", []))
+        missing = states(answer["answer"], ref.keys)
         rows.append(Row(q.id, q.tags, plan == Counter(q.calls), judge(answer, ref), bool(answer["grounded"]),
                         bool(answer.get("refused")), q.refuse, bool(answer.get("declined")),
                         str(answer.get("planned_by", "?")).split(":")[0],
-                        seconds, answer["answer"], states(answer["answer"], ref.keys),
-                        answer.get("plan", []), q.lang,
-                        bool(answer.get("declined")) and not q.refuse and bool(ref.keys)
-                        and not states(answer["answer"], ref.keys)))  # fmt: skip
+                        seconds, answer["answer"], missing, answer.get("plan", []), q.lang,
+                        bool(answer.get("declined")) and not q.refuse and bool(ref.keys) and not missing))  # fmt: skip
         if progress:
             progress(k + 1)
     return rows
